@@ -1,0 +1,1 @@
+//! Synthetic scans (being written).

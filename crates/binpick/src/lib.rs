@@ -1,0 +1,1 @@
+//! Recognition pipeline (being written).

@@ -1,0 +1,1 @@
+//! PCL bridge (being written).
