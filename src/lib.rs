@@ -1,1 +1,422 @@
-//! PCL bridge (being written).
+//! `binpick-pcl`: a thin, safe bridge over the real Point Cloud Library 1.13.
+//!
+//! Each function crosses the FFI boundary once per stage with flat slices (no per-point
+//! calls) and returns plain Rust data; PCL types never leave this crate. Every fallible C++
+//! call returns [`Result`]: C++ exceptions (bad input, PCL failures) become [`Error`]s.
+//!
+//! | Rust                              | PCL class (1.13)                                           |
+//! |-----------------------------------|------------------------------------------------------------|
+//! | [`uniform_sampling`]              | `pcl::UniformSampling` (thesis 3.2.3)                      |
+//! | [`voxel_grid`]                    | `pcl::VoxelGrid`                                           |
+//! | [`estimate_normals`]              | `pcl::NormalEstimationOMP`                                 |
+//! | [`IndexedCloud::fpfh`]            | `pcl::NormalEstimationOMP` + `pcl::FPFHEstimationOMP` (3.3.2) |
+//! | [`IndexedCloud::euclidean_clusters`] | `pcl::EuclideanClusterExtraction` (3.4.1.3)            |
+//! | [`segment_plane`]                 | `pcl::SACSegmentation` (plane, RANSAC)                     |
+//! | [`match_features`]                | `pcl::registration::CorrespondenceEstimation` (3.4.1)      |
+//! | [`reject_sample_consensus`]       | `pcl::registration::CorrespondenceRejectorSampleConsensus` (3.4.2.5) |
+//! | [`estimate_svd`]                  | `pcl::registration::TransformationEstimationSVD` (3.5.1)   |
+//! | [`IndexedCloud::icp`]             | `pcl::IterativeClosestPoint` (3.6.1)                       |
+//!
+//! Units are whatever the caller uses consistently (binpick: millimetres). Transforms are
+//! row-major 4x4 `[f64; 16]`, source -> target.
+
+mod ffi;
+
+use std::sync::Once;
+
+use cxx::UniquePtr;
+use ffi::bridge;
+
+pub use bridge::Correspondence;
+
+/// One point `[x, y, z]`.
+pub type Point = [f32; 3];
+/// An FPFH descriptor: 3 x 11 bins (`pcl::FPFHSignature33`).
+pub type Fpfh = [f32; 33];
+/// Row-major 4x4 rigid transform, source -> target.
+pub type Mat4 = [f64; 16];
+
+/// Tolerance on `det(R) = +1` for transforms coming out of PCL (single precision inside).
+const DET_TOLERANCE: f64 = 1e-3;
+
+/// Errors from the bridge. Messages name the PCL stage and the problem.
+#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+pub enum Error {
+    /// The C++ side rejected an argument or PCL failed; the message says which and why.
+    #[error("PCL {call}: {message}")]
+    Pcl { call: &'static str, message: String },
+    /// RANSAC found no model (PCL then returns the input correspondences and identity).
+    #[error("PCL {call}: no consensus among {correspondences} correspondences")]
+    NoConsensus {
+        call: &'static str,
+        correspondences: usize,
+    },
+    /// A rotation with det != +1 (a reflection or a degenerate matrix; cf. PCL issue #1707).
+    #[error("PCL {call}: transform is not a proper rotation (det = {det:.5})")]
+    ImproperRotation { call: &'static str, det: f64 },
+}
+
+/// Result alias for bridge calls.
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+fn pcl_err(call: &'static str) -> impl Fn(cxx::Exception) -> Error {
+    move |e| Error::Pcl {
+        call,
+        message: e.what().to_owned(),
+    }
+}
+
+static QUIET: Once = Once::new();
+
+/// PCL prints warnings to stderr; binpick reports every condition as an error instead, so
+/// PCL is silenced unless `BINPICK_PCL_VERBOSE` is set (0 = always .. 5 = verbose).
+fn init() {
+    QUIET.call_once(|| {
+        let level = std::env::var("BINPICK_PCL_VERBOSE")
+            .ok()
+            .and_then(|v| v.parse::<i32>().ok())
+            .unwrap_or(0);
+        // Level is validated by PCL's wrapper; an out-of-range value just keeps the default.
+        let _ = bridge::set_pcl_verbosity(level.clamp(0, 5));
+    });
+}
+
+fn flat(points: &[Point]) -> &[f32] {
+    points.as_flattened()
+}
+
+fn unflatten3(v: &[f32]) -> Vec<Point> {
+    v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
+}
+
+fn rotation_det(m: &Mat4) -> f64 {
+    let (a, b, c) = (m[0], m[1], m[2]);
+    let (d, e, f) = (m[4], m[5], m[6]);
+    let (g, h, i) = (m[8], m[9], m[10]);
+    a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+}
+
+fn check_proper(call: &'static str, m: &Mat4) -> Result<()> {
+    let det = rotation_det(m);
+    if (det - 1.0).abs() > DET_TOLERANCE || !det.is_finite() {
+        return Err(Error::ImproperRotation { call, det });
+    }
+    Ok(())
+}
+
+/// Uniform keypoints (thesis 3.2.3): per `leaf`-sized cubic cell, the input point nearest the
+/// cell centre. Returns indices into `points`, ascending. Errors on empty or non-finite input,
+/// a non-positive leaf, or a leaf so small the grid would overflow PCL's 32-bit cell index.
+pub fn uniform_sampling(points: &[Point], leaf: f32) -> Result<Vec<u32>> {
+    init();
+    bridge::uniform_sampling(flat(points), leaf).map_err(pcl_err("UniformSampling"))
+}
+
+/// Voxel-grid filter: one centroid per occupied `leaf`-sized cell (new points, ordered by cell).
+pub fn voxel_grid(points: &[Point], leaf: f32) -> Result<Vec<Point>> {
+    init();
+    bridge::voxel_grid(flat(points), leaf)
+        .map(|v| unflatten3(&v))
+        .map_err(pcl_err("VoxelGrid"))
+}
+
+/// A surface normal and PCL's curvature estimate; NaN where PCL could not estimate one
+/// (fewer than 3 neighbours within the radius).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Normal {
+    pub normal: [f32; 3],
+    pub curvature: f32,
+}
+
+/// Normals of every point from its neighbours within `radius`, flipped towards `viewpoint`.
+/// `threads` = OpenMP threads (0 = all cores); the result does not depend on it.
+pub fn estimate_normals(
+    points: &[Point],
+    radius: f32,
+    viewpoint: Point,
+    threads: u32,
+) -> Result<Vec<Normal>> {
+    init();
+    let v = bridge::estimate_normals(flat(points), radius, &viewpoint, threads)
+        .map_err(pcl_err("NormalEstimationOMP"))?;
+    Ok(v.chunks_exact(4)
+        .map(|c| Normal {
+            normal: [c[0], c[1], c[2]],
+            curvature: c[3],
+        })
+        .collect())
+}
+
+/// A fitted plane `a x + b y + c z + d = 0` (unit normal) and the indices of its inliers.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Plane {
+    pub coefficients: [f32; 4],
+    pub inliers: Vec<u32>,
+}
+
+/// RANSAC plane fit (`pcl::SACSegmentation`, optimised coefficients, fixed seed). `Ok(None)`
+/// when PCL finds no plane.
+pub fn segment_plane(
+    points: &[Point],
+    distance_threshold: f32,
+    max_iterations: u32,
+) -> Result<Option<Plane>> {
+    init();
+    let fit = bridge::segment_plane(flat(points), distance_threshold, max_iterations)
+        .map_err(pcl_err("SACSegmentation"))?;
+    Ok(fit.found.then_some(Plane {
+        coefficients: fit.coefficients,
+        inliers: fit.inliers,
+    }))
+}
+
+/// For every source descriptor, its nearest target descriptor
+/// (`pcl::registration::CorrespondenceEstimation<FPFHSignature33, FPFHSignature33>`);
+/// `distance` is the squared L2 distance between histograms.
+pub fn match_features(source: &[Fpfh], target: &[Fpfh]) -> Result<Vec<Correspondence>> {
+    init();
+    bridge::match_features(source.as_flattened(), target.as_flattened())
+        .map_err(pcl_err("CorrespondenceEstimation"))
+}
+
+/// What the RANSAC rejector kept.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Consensus {
+    /// The inlier correspondences.
+    pub kept: Vec<Correspondence>,
+    /// RANSAC's best transform, source -> target (row-major, proper rotation).
+    pub transform: Mat4,
+}
+
+/// `pcl::registration::CorrespondenceRejectorSampleConsensus` (thesis 3.4.2.5) with
+/// `max_iterations` and `inlier_threshold` (point units). Deterministic (PCL seed 12345).
+/// Errors: [`Error::NoConsensus`] when RANSAC finds no model, [`Error::ImproperRotation`]
+/// when its transform is not a rotation.
+pub fn reject_sample_consensus(
+    source: &[Point],
+    target: &[Point],
+    correspondences: &[Correspondence],
+    inlier_threshold: f32,
+    max_iterations: u32,
+) -> Result<Consensus> {
+    const CALL: &str = "CorrespondenceRejectorSampleConsensus";
+    init();
+    let r = bridge::reject_sample_consensus(
+        flat(source),
+        flat(target),
+        correspondences,
+        inlier_threshold,
+        max_iterations,
+    )
+    .map_err(pcl_err(CALL))?;
+    if !r.converged {
+        return Err(Error::NoConsensus {
+            call: CALL,
+            correspondences: correspondences.len(),
+        });
+    }
+    if (r.rotation_det - 1.0).abs() > DET_TOLERANCE {
+        return Err(Error::ImproperRotation {
+            call: CALL,
+            det: r.rotation_det,
+        });
+    }
+    Ok(Consensus {
+        kept: r.kept,
+        transform: r.transform,
+    })
+}
+
+/// `pcl::registration::TransformationEstimationSVD` (thesis 3.5.1): the rigid transform
+/// source -> target minimising the squared distances of the corresponding points.
+pub fn estimate_svd(
+    source: &[Point],
+    target: &[Point],
+    correspondences: &[Correspondence],
+) -> Result<Mat4> {
+    const CALL: &str = "TransformationEstimationSVD";
+    init();
+    let t =
+        bridge::estimate_svd(flat(source), flat(target), correspondences).map_err(pcl_err(CALL))?;
+    check_proper(CALL, &t.m)?;
+    Ok(t.m)
+}
+
+/// FPFH settings: radii in point units, sensor viewpoint for normal orientation.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FpfhParams {
+    pub feature_radius: f32,
+    pub normal_radius: f32,
+    pub viewpoint: Point,
+    /// OpenMP threads for normals and FPFH (0 = all cores). Results do not depend on it.
+    pub threads: u32,
+}
+
+/// FPFH descriptors at a set of keypoints; `valid[i]` is false where PCL could not compute
+/// one (no neighbours or no normal), and that descriptor must not be matched.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FpfhSet {
+    pub descriptors: Vec<Fpfh>,
+    pub valid: Vec<bool>,
+}
+
+/// ICP settings (thesis 3.6.1: 50 iterations, epsilon 1e-7).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IcpParams {
+    /// Initial guess, source -> target.
+    pub initial: Mat4,
+    pub max_correspondence_distance: f64,
+    pub max_iterations: u32,
+    pub transformation_epsilon: f64,
+}
+
+/// Why ICP stopped (`pcl::registration::DefaultConvergenceCriteria::ConvergenceState`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum IcpStop {
+    NotConverged,
+    Iterations,
+    Transform,
+    AbsoluteMse,
+    RelativeMse,
+    NoCorrespondences,
+    FailureAfterMaxIterations,
+    Unknown(i32),
+}
+
+impl IcpStop {
+    fn from_pcl(state: i32) -> Self {
+        match state {
+            0 => Self::NotConverged,
+            1 => Self::Iterations,
+            2 => Self::Transform,
+            3 => Self::AbsoluteMse,
+            4 => Self::RelativeMse,
+            5 => Self::NoCorrespondences,
+            6 => Self::FailureAfterMaxIterations,
+            s => Self::Unknown(s),
+        }
+    }
+}
+
+/// ICP outcome. `transform` is the full source -> target transform (initial guess included).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IcpOutcome {
+    pub transform: Mat4,
+    pub converged: bool,
+    /// PCL's fitness score: mean squared distance of source points to their nearest target
+    /// point, over those within the max correspondence distance.
+    pub fitness: f64,
+    pub iterations: u32,
+    pub stop: IcpStop,
+}
+
+/// A cloud uploaded to PCL once, with its kd-tree (FLANN), reused by many calls: clustering,
+/// feature surfaces, ICP targets, nearest-neighbour queries. `Send + Sync`: it is immutable
+/// after construction and every call only reads it.
+pub struct IndexedCloud {
+    inner: UniquePtr<bridge::Cloud>,
+    len: usize,
+}
+
+impl std::fmt::Debug for IndexedCloud {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("IndexedCloud")
+            .field("len", &self.len)
+            .finish()
+    }
+}
+
+impl IndexedCloud {
+    /// Copies `points` into a `pcl::PointCloud<PointXYZ>` and builds its kd-tree. Errors on an
+    /// empty cloud or a non-finite coordinate.
+    pub fn new(points: &[Point]) -> Result<Self> {
+        init();
+        let inner = bridge::upload_cloud(flat(points)).map_err(pcl_err("upload"))?;
+        let len = bridge::cloud_len(&inner);
+        Ok(Self { inner, len })
+    }
+
+    fn cloud(&self) -> &bridge::Cloud {
+        // `new` is the only constructor and `upload_cloud` never returns null on success.
+        self.inner
+            .as_ref()
+            .unwrap_or_else(|| unreachable!("IndexedCloud holds a null pointer"))
+    }
+
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Squared distance from each query point to its nearest cloud point.
+    pub fn nearest_sq_distances(&self, query: &[Point]) -> Result<Vec<f32>> {
+        bridge::nearest_sq_distances(self.cloud(), flat(query)).map_err(pcl_err("KdTree"))
+    }
+
+    /// FPFH at `keypoints` (indices into this cloud), with the whole cloud as search surface:
+    /// normals at `normal_radius`, descriptors at `feature_radius` (thesis 3.3.2).
+    pub fn fpfh(&self, keypoints: &[u32], params: &FpfhParams) -> Result<FpfhSet> {
+        let f = bridge::cloud_fpfh(
+            self.cloud(),
+            keypoints,
+            params.feature_radius,
+            params.normal_radius,
+            &params.viewpoint,
+            params.threads,
+        )
+        .map_err(pcl_err("FPFHEstimationOMP"))?;
+        let descriptors = f
+            .values
+            .chunks_exact(33)
+            .map(|c| {
+                let mut d = [0.0f32; 33];
+                d.copy_from_slice(c);
+                d
+            })
+            .collect();
+        Ok(FpfhSet {
+            descriptors,
+            valid: f.valid,
+        })
+    }
+
+    /// Euclidean clusters (thesis 3.4.1.3): indices per cluster, ascending; clusters with a
+    /// size outside `[min_size, max_size]` are dropped; clusters ordered by first index.
+    pub fn euclidean_clusters(
+        &self,
+        tolerance: f32,
+        min_size: u32,
+        max_size: u32,
+    ) -> Result<Vec<Vec<u32>>> {
+        let c = bridge::euclidean_clusters(self.cloud(), tolerance, min_size, max_size)
+            .map_err(pcl_err("EuclideanClusterExtraction"))?;
+        Ok(c.offsets
+            .windows(2)
+            .map(|w| c.indices[w[0] as usize..w[1] as usize].to_vec())
+            .collect())
+    }
+
+    /// ICP of `source` onto this cloud, reusing its kd-tree. Errors if PCL's transform is not
+    /// a proper rotation.
+    pub fn icp(&self, source: &[Point], params: &IcpParams) -> Result<IcpOutcome> {
+        const CALL: &str = "IterativeClosestPoint";
+        let p = bridge::IcpParams {
+            initial: params.initial,
+            max_correspondence_distance: params.max_correspondence_distance,
+            max_iterations: params.max_iterations,
+            transformation_epsilon: params.transformation_epsilon,
+        };
+        let r = bridge::icp_align(self.cloud(), flat(source), &p).map_err(pcl_err(CALL))?;
+        check_proper(CALL, &r.transform)?;
+        Ok(IcpOutcome {
+            transform: r.transform,
+            converged: r.converged,
+            fitness: r.fitness,
+            iterations: r.iterations,
+            stop: IcpStop::from_pcl(r.state),
+        })
+    }
+}

@@ -1,0 +1,106 @@
+// Surface normals and FPFH descriptors (pcl_features, thesis 3.3.2).
+#include <pcl/features/fpfh_omp.h>
+#include <pcl/features/normal_3d_omp.h>
+
+#include <cmath>
+
+#include "binpick-pcl/src/ffi.rs.h"
+#include "internal.h"
+
+namespace binpick {
+namespace {
+
+using Normals = pcl::PointCloud<pcl::Normal>;
+
+Eigen::Vector3f read_viewpoint(rust::Slice<const float> viewpoint) {
+  if (viewpoint.size() != 3 || !std::isfinite(viewpoint[0]) || !std::isfinite(viewpoint[1]) ||
+      !std::isfinite(viewpoint[2])) {
+    fail("viewpoint must be 3 finite coordinates");
+  }
+  return {viewpoint[0], viewpoint[1], viewpoint[2]};
+}
+
+// pcl::NormalEstimationOMP over `cloud`, searching `tree` (built on `cloud`), flipped towards
+// the sensor viewpoint so the model and the scene orient normals the same way.
+Normals::Ptr normals_for(const PointCloudXYZ::Ptr& cloud,
+                         const pcl::search::KdTree<pcl::PointXYZ>::Ptr& tree, float radius,
+                         const Eigen::Vector3f& vp, std::uint32_t threads) {
+  pcl::NormalEstimationOMP<pcl::PointXYZ, pcl::Normal> ne(threads);
+  ne.setInputCloud(cloud);
+  ne.setSearchMethod(tree);
+  ne.setRadiusSearch(radius);
+  ne.setViewPoint(vp.x(), vp.y(), vp.z());
+  Normals::Ptr normals(new Normals);
+  ne.compute(*normals);
+  if (normals->size() != cloud->size()) {
+    throw std::runtime_error("NormalEstimationOMP failed (see PCL's message above)");
+  }
+  return normals;
+}
+
+}  // namespace
+
+rust::Vec<float> estimate_normals(rust::Slice<const float> xyz, float radius,
+                                  rust::Slice<const float> viewpoint, std::uint32_t threads) {
+  check_positive(radius, "normal radius");
+  const auto vp = read_viewpoint(viewpoint);
+  const auto cloud = to_cloud(xyz, "estimate_normals");
+  const auto normals = normals_for(cloud, make_tree(cloud), radius, vp, threads);
+  rust::Vec<float> out;
+  out.reserve(normals->size() * 4);
+  for (const auto& n : normals->points) {
+    out.push_back(n.normal_x);
+    out.push_back(n.normal_y);
+    out.push_back(n.normal_z);
+    out.push_back(n.curvature);
+  }
+  return out;
+}
+
+// FPFH (pcl::FPFHEstimationOMP) at `keypoints` (indices into `surface`), with the whole
+// surface as search surface: normals are estimated on the surface at `normal_radius`
+// (thesis: 0.8 x feature radius), then the descriptor at `feature_radius`. The surface's
+// kd-tree, built once on upload, serves both estimators. A keypoint whose descriptor is
+// undefined (no neighbours, or an undefined normal) is marked invalid instead of carrying
+// NaNs into the feature kd-tree.
+Features cloud_fpfh(const Cloud& surface, rust::Slice<const std::uint32_t> keypoints,
+                    float feature_radius, float normal_radius, rust::Slice<const float> viewpoint,
+                    std::uint32_t threads) {
+  check_positive(feature_radius, "FPFH radius");
+  check_positive(normal_radius, "normal radius");
+  const auto vp = read_viewpoint(viewpoint);
+  const auto& s = surface.impl();
+  auto indices = std::make_shared<pcl::Indices>(to_indices(keypoints, s.points->size(), "keypoints"));
+  if (indices->empty()) fail("cloud_fpfh: no keypoints");
+
+  const auto normals = normals_for(s.points, s.tree, normal_radius, vp, threads);
+
+  pcl::FPFHEstimationOMP<pcl::PointXYZ, pcl::Normal, pcl::FPFHSignature33> fpfh(threads);
+  fpfh.setInputCloud(s.points);
+  fpfh.setIndices(indices);
+  fpfh.setInputNormals(normals);
+  fpfh.setSearchMethod(s.tree);
+  fpfh.setRadiusSearch(feature_radius);
+  pcl::PointCloud<pcl::FPFHSignature33> descriptors;
+  fpfh.compute(descriptors);
+  if (descriptors.size() != indices->size()) {
+    throw std::runtime_error("FPFHEstimationOMP failed (see PCL's message above)");
+  }
+
+  Features out;
+  out.values.reserve(descriptors.size() * 33);
+  out.valid.reserve(descriptors.size());
+  for (std::size_t k = 0; k < descriptors.size(); ++k) {
+    const auto& h = descriptors[k].histogram;
+    const auto& n = (*normals)[(*indices)[k]];
+    bool ok = std::isfinite(n.normal_x) && std::isfinite(n.normal_y) && std::isfinite(n.normal_z);
+    for (int d = 0; d < 33; ++d) {
+      ok = ok && std::isfinite(h[d]);
+      out.values.push_back(h[d]);
+    }
+    out.valid.push_back(ok);
+  }
+  return out;
+}
+
+}  // namespace binpick

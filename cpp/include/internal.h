@@ -1,0 +1,49 @@
+// Helpers shared by the bridge's translation units (not seen by Rust or cxx).
+#pragma once
+
+#include <pcl/point_cloud.h>
+#include <pcl/point_types.h>
+#include <pcl/search/kdtree.h>
+
+#include <sstream>
+#include <stdexcept>
+#include <string>
+
+#include "binpick_pcl.h"
+
+namespace binpick {
+
+using PointCloudXYZ = pcl::PointCloud<pcl::PointXYZ>;
+
+struct Cloud::Impl {
+  PointCloudXYZ::Ptr points;
+  pcl::search::KdTree<pcl::PointXYZ>::Ptr tree;
+};
+
+// Throws std::invalid_argument with a message built from the arguments.
+template <typename... Args>
+[[noreturn]] void fail(const Args&... args) {
+  std::ostringstream msg;
+  (msg << ... << args);
+  throw std::invalid_argument(msg.str());
+}
+
+// Converts a flat [x0 y0 z0 x1 ...] slice into a dense PCL cloud. Rejects slices whose
+// length is not a multiple of 3, empty slices (unless allowed) and non-finite coordinates:
+// PCL's kd-trees and estimators silently misbehave on those.
+PointCloudXYZ::Ptr to_cloud(rust::Slice<const float> xyz, const char* what,
+                            bool allow_empty = false);
+
+// Indices into a cloud of `n` points, each checked to be in range.
+pcl::Indices to_indices(rust::Slice<const std::uint32_t> idx, std::size_t n, const char* what);
+
+// Builds the kd-tree PCL's own estimators build by default (unsorted radius results).
+pcl::search::KdTree<pcl::PointXYZ>::Ptr make_tree(const PointCloudXYZ::Ptr& cloud);
+
+// Refuses grids whose integer voxel indices would overflow PCL's 32-bit arithmetic
+// (VoxelGrid then returns its input unchanged; UniformSampling silently aliases leaves).
+void check_grid(const PointCloudXYZ& cloud, float leaf, const char* what);
+
+void check_positive(double value, const char* name);
+
+}  // namespace binpick

@@ -1,0 +1,180 @@
+// Correspondences, RANSAC rejection, SVD and ICP (pcl_registration, thesis 3.4-3.6).
+#include <pcl/registration/correspondence_estimation.h>
+#include <pcl/registration/correspondence_rejection_sample_consensus.h>
+#include <pcl/registration/icp.h>
+#include <pcl/registration/transformation_estimation_svd.h>
+
+#include <cmath>
+
+#include "binpick-pcl/src/ffi.rs.h"
+#include "internal.h"
+
+namespace binpick {
+namespace {
+
+using FeatureCloud = pcl::PointCloud<pcl::FPFHSignature33>;
+
+FeatureCloud::Ptr to_features(rust::Slice<const float> values, const char* what) {
+  if (values.size() % 33 != 0) fail(what, ": ", values.size(), " floats is not a whole number of 33-bin FPFH descriptors");
+  const std::size_t n = values.size() / 33;
+  if (n == 0) fail(what, ": no descriptors");
+  FeatureCloud::Ptr cloud(new FeatureCloud);
+  cloud->resize(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    for (int d = 0; d < 33; ++d) {
+      const float v = values[i * 33 + d];
+      if (!std::isfinite(v)) fail(what, ": descriptor ", i, " has a non-finite bin");
+      (*cloud)[i].histogram[d] = v;
+    }
+  }
+  cloud->width = static_cast<std::uint32_t>(n);
+  cloud->height = 1;
+  return cloud;
+}
+
+pcl::Correspondences to_pcl(rust::Slice<const Correspondence> corrs, std::size_t n_source,
+                            std::size_t n_target) {
+  pcl::Correspondences out;
+  out.reserve(corrs.size());
+  for (const auto& c : corrs) {
+    if (c.query >= n_source || c.matched >= n_target) {
+      fail("correspondence (", c.query, " -> ", c.matched, ") is out of range for clouds of ",
+           n_source, " and ", n_target, " points");
+    }
+    out.emplace_back(static_cast<pcl::index_t>(c.query), static_cast<pcl::index_t>(c.matched),
+                     c.distance);
+  }
+  return out;
+}
+
+template <typename Matrix>
+void to_row_major(const Matrix& m, std::array<double, 16>& out) {
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 4; ++c) out[r * 4 + c] = static_cast<double>(m(r, c));
+}
+
+Eigen::Matrix4d from_row_major(const std::array<double, 16>& a) {
+  Eigen::Matrix4d m;
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 4; ++c) m(r, c) = a[r * 4 + c];
+  return m;
+}
+
+// ICP that also reports how many iterations it ran (a protected member in PCL).
+class CountingIcp : public pcl::IterativeClosestPoint<pcl::PointXYZ, pcl::PointXYZ, double> {
+ public:
+  int iterations() const { return nr_iterations_; }
+};
+
+}  // namespace
+
+// pcl::registration::CorrespondenceEstimation in FPFH space: for every source descriptor, its
+// nearest target descriptor (distance = squared L2 between histograms).
+rust::Vec<Correspondence> match_features(rust::Slice<const float> source_features,
+                                         rust::Slice<const float> target_features) {
+  const auto src = to_features(source_features, "match_features source");
+  const auto tgt = to_features(target_features, "match_features target");
+  pcl::registration::CorrespondenceEstimation<pcl::FPFHSignature33, pcl::FPFHSignature33> est;
+  est.setInputSource(src);
+  est.setInputTarget(tgt);
+  pcl::Correspondences corrs;
+  est.determineCorrespondences(corrs);
+  rust::Vec<Correspondence> out;
+  out.reserve(corrs.size());
+  for (const auto& c : corrs) {
+    out.push_back(Correspondence{static_cast<std::uint32_t>(c.index_query),
+                                 static_cast<std::uint32_t>(c.index_match), c.distance});
+  }
+  return out;
+}
+
+// pcl::registration::CorrespondenceRejectorSampleConsensus (thesis 3.4.2.5): RANSAC over the
+// correspondences with `max_iterations` and `inlier_threshold` (same units as the points).
+// Deterministic: each call builds a fresh PCL model seeded with 12345. `converged` is false
+// when PCL found no model (it then returns the input unchanged and an identity transform).
+SacResult reject_sample_consensus(rust::Slice<const float> source_xyz,
+                                  rust::Slice<const float> target_xyz,
+                                  rust::Slice<const Correspondence> correspondences,
+                                  float inlier_threshold, std::uint32_t max_iterations) {
+  check_positive(inlier_threshold, "SAC inlier threshold");
+  if (max_iterations == 0) fail("SAC rejector needs at least one iteration");
+  const auto src = to_cloud(source_xyz, "SAC source");
+  const auto tgt = to_cloud(target_xyz, "SAC target");
+  const auto corrs = to_pcl(correspondences, src->size(), tgt->size());
+  if (corrs.size() < 3) fail("SAC rejector needs at least 3 correspondences, got ", corrs.size());
+
+  pcl::registration::CorrespondenceRejectorSampleConsensus<pcl::PointXYZ> rej;
+  rej.setInputSource(src);
+  rej.setInputTarget(tgt);
+  rej.setInlierThreshold(inlier_threshold);
+  rej.setMaximumIterations(static_cast<int>(max_iterations));
+  rej.setRefineModel(false);
+  rej.setSaveInliers(true);
+  pcl::Correspondences kept;
+  rej.getRemainingCorrespondences(corrs, kept);
+  pcl::Indices inliers;
+  rej.getInliersIndices(inliers);
+
+  SacResult out;
+  out.converged = !inliers.empty();
+  const Eigen::Matrix4f t = rej.getBestTransformation();
+  to_row_major(t, out.transform);
+  out.rotation_det = static_cast<double>(t.topLeftCorner<3, 3>().determinant());
+  if (out.converged) {
+    for (const auto& c : kept) {
+      out.kept.push_back(Correspondence{static_cast<std::uint32_t>(c.index_query),
+                                        static_cast<std::uint32_t>(c.index_match), c.distance});
+    }
+  }
+  return out;
+}
+
+// pcl::registration::TransformationEstimationSVD (thesis 3.5.1): closed-form rigid transform
+// (Umeyama) minimising the distances between corresponding points, source -> target.
+Transform estimate_svd(rust::Slice<const float> source_xyz, rust::Slice<const float> target_xyz,
+                       rust::Slice<const Correspondence> correspondences) {
+  const auto src = to_cloud(source_xyz, "SVD source");
+  const auto tgt = to_cloud(target_xyz, "SVD target");
+  const auto corrs = to_pcl(correspondences, src->size(), tgt->size());
+  if (corrs.size() < 3) fail("SVD needs at least 3 correspondences, got ", corrs.size());
+  pcl::registration::TransformationEstimationSVD<pcl::PointXYZ, pcl::PointXYZ, double> svd;
+  Eigen::Matrix4d t;
+  svd.estimateRigidTransformation(*src, *tgt, corrs, t);
+  if (!t.allFinite()) throw std::runtime_error("SVD produced a non-finite transform");
+  Transform out;
+  to_row_major(t, out.m);
+  return out;
+}
+
+// pcl::IterativeClosestPoint (thesis 3.6.1) of `source_xyz` onto the uploaded `target`,
+// reusing the target's kd-tree (no rebuild per call).
+IcpResult icp_align(const Cloud& target, rust::Slice<const float> source_xyz,
+                    const IcpParams& params) {
+  check_positive(params.max_correspondence_distance, "ICP max correspondence distance");
+  check_positive(params.transformation_epsilon, "ICP transformation epsilon");
+  if (params.max_iterations == 0) fail("ICP needs at least one iteration");
+  const Eigen::Matrix4d guess = from_row_major(params.initial);
+  if (!guess.allFinite()) fail("ICP initial guess has a non-finite entry");
+  const auto src = to_cloud(source_xyz, "ICP source");
+  const auto& t = target.impl();
+
+  CountingIcp icp;
+  icp.setInputSource(src);
+  icp.setInputTarget(t.points);
+  icp.setSearchMethodTarget(t.tree, /*force_no_recompute=*/true);
+  icp.setMaxCorrespondenceDistance(params.max_correspondence_distance);
+  icp.setMaximumIterations(static_cast<int>(params.max_iterations));
+  icp.setTransformationEpsilon(params.transformation_epsilon);
+  PointCloudXYZ aligned;
+  icp.align(aligned, guess);
+
+  IcpResult out;
+  out.converged = icp.hasConverged();
+  to_row_major(icp.getFinalTransformation(), out.transform);
+  out.fitness = icp.getFitnessScore(params.max_correspondence_distance);
+  out.iterations = static_cast<std::uint32_t>(std::max(icp.iterations(), 0));
+  out.state = static_cast<std::int32_t>(icp.getConvergeCriteria()->getConvergenceState());
+  return out;
+}
+
+}  // namespace binpick

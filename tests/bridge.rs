@@ -1,0 +1,461 @@
+//! Properties of the PCL bridge: each test fails if the wrapped PCL primitive, or the way the
+//! bridge feeds it, is wrong.
+
+use binpick_pcl::{
+    Correspondence, Error, FpfhParams, IcpParams, IndexedCloud, Mat4, Point, estimate_normals,
+    estimate_svd, match_features, reject_sample_consensus, segment_plane, uniform_sampling,
+    voxel_grid,
+};
+use nalgebra::{Isometry3, Matrix4, Point3, Translation3, UnitQuaternion, Vector3};
+
+/// Deterministic xorshift in [0, 1).
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> f32 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        (self.0 >> 40) as f32 / (1u64 << 24) as f32
+    }
+}
+
+/// A deliberately asymmetric part (mm, 1 mm grid): a plate with an off-centre bump, a partial
+/// wall on one edge and a cylinder stub.
+fn bracket() -> Vec<Point> {
+    let mut pts = Vec::new();
+    for i in 0..=60 {
+        for j in 0..=40 {
+            let (x, y) = (i as f32, j as f32);
+            let bump = 6.0 * (-((x - 15.0).powi(2) + (y - 10.0).powi(2)) / 50.0).exp();
+            pts.push([x, y, bump]);
+        }
+    }
+    for j in 0..=25 {
+        for k in 1..=30 {
+            pts.push([60.0 + 0.3 * k as f32, j as f32, k as f32]);
+        }
+    }
+    for a in 0..25 {
+        let t = a as f32 / 25.0 * std::f32::consts::TAU;
+        for k in 1..=10 {
+            pts.push([30.0 + 4.0 * t.cos(), 28.0 + 4.0 * t.sin(), k as f32]);
+        }
+    }
+    pts
+}
+
+fn iso(axis: [f64; 3], deg: f64, t: [f64; 3]) -> Isometry3<f64> {
+    Isometry3::from_parts(
+        Translation3::new(t[0], t[1], t[2]),
+        UnitQuaternion::from_axis_angle(
+            &nalgebra::Unit::new_normalize(Vector3::new(axis[0], axis[1], axis[2])),
+            deg.to_radians(),
+        ),
+    )
+}
+
+fn apply(pose: &Isometry3<f64>, pts: &[Point]) -> Vec<Point> {
+    pts.iter()
+        .map(|p| {
+            let q = pose * Point3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+            [q.x as f32, q.y as f32, q.z as f32]
+        })
+        .collect()
+}
+
+fn to_mat4(pose: &Isometry3<f64>) -> Mat4 {
+    let h = pose.to_homogeneous();
+    std::array::from_fn(|k| h[(k / 4, k % 4)])
+}
+
+fn from_mat4(m: &Mat4) -> Matrix4<f64> {
+    Matrix4::from_fn(|r, c| m[r * 4 + c])
+}
+
+/// (rotation error in degrees, translation error in mm) between two row-major transforms.
+fn pose_error(a: &Mat4, b: &Isometry3<f64>) -> (f64, f64) {
+    let a = from_mat4(a);
+    let b = b.to_homogeneous();
+    let r = a.fixed_view::<3, 3>(0, 0).transpose() * b.fixed_view::<3, 3>(0, 0);
+    let cos = ((r.trace() - 1.0) / 2.0).clamp(-1.0, 1.0);
+    let t = (a.fixed_view::<3, 1>(0, 3) - b.fixed_view::<3, 1>(0, 3)).norm();
+    (cos.acos().to_degrees(), t)
+}
+
+#[test]
+fn icp_recovers_a_known_rigid_transform() {
+    let model = bracket();
+    let truth = iso([0.3, -0.5, 0.8], 6.0, [4.0, -3.0, 2.5]);
+    let target = IndexedCloud::new(&apply(&truth, &model)).unwrap();
+    let out = target
+        .icp(
+            &model,
+            &IcpParams {
+                initial: to_mat4(&Isometry3::identity()),
+                max_correspondence_distance: 20.0,
+                max_iterations: 50,
+                transformation_epsilon: 1e-7,
+            },
+        )
+        .unwrap();
+    assert!(out.converged, "{out:?}");
+    let (rot, trans) = pose_error(&out.transform, &truth);
+    assert!(rot < 0.1, "rotation error {rot} deg");
+    assert!(trans < 0.1, "translation error {trans} mm");
+    assert!(out.fitness < 1e-3, "fitness {}", out.fitness);
+}
+
+fn fpfh_at(points: &[Point], keypoints: &[u32], viewpoint: Point) -> Vec<[f32; 33]> {
+    let set = IndexedCloud::new(points)
+        .unwrap()
+        .fpfh(
+            keypoints,
+            &FpfhParams {
+                feature_radius: 8.5,
+                normal_radius: 6.8,
+                viewpoint,
+                threads: 1,
+            },
+        )
+        .unwrap();
+    assert!(
+        set.valid.iter().all(|&v| v),
+        "every bracket keypoint has a descriptor"
+    );
+    set.descriptors
+}
+
+fn l1(a: &[f32; 33], b: &[f32; 33]) -> f32 {
+    a.iter().zip(b).map(|(x, y)| (x - y).abs()).sum()
+}
+
+#[test]
+fn fpfh_is_invariant_to_rigid_motion_and_separates_shapes() {
+    let shape = bracket();
+    let keypoints = uniform_sampling(&shape, 4.0).unwrap();
+    let vp = [30.0f32, 20.0, 500.0];
+    let a = fpfh_at(&shape, &keypoints, vp);
+
+    let motion = iso([1.0, 2.0, -0.5], 73.0, [120.0, -40.0, 15.0]);
+    let moved = apply(&motion, &shape);
+    let vp_moved = apply(&motion, &[vp])[0];
+    let b = fpfh_at(&moved, &keypoints, vp_moved);
+
+    // Same point, same descriptor (each sub-histogram sums to 100, so 300 in all); a few
+    // points whose neighbour sits within float noise of the radius may differ slightly.
+    let mut same: Vec<f32> = a.iter().zip(&b).map(|(x, y)| l1(x, y)).collect();
+    same.sort_by(f32::total_cmp);
+    let p95 = same[same.len() * 95 / 100];
+    assert!(p95 < 0.5, "95th percentile L1 difference {p95} over 300");
+
+    // A different shape: a sphere cap of similar size. Its descriptors are far from the
+    // bracket's, by much more than the motion noise.
+    let mut sphere = Vec::new();
+    for i in 0..60 {
+        for j in 0..40 {
+            let (u, v) = (i as f32 / 60.0 * 1.2 - 0.6, j as f32 / 40.0 * 1.2 - 0.6);
+            sphere.push([40.0 * u.sin(), 40.0 * v.sin(), 40.0 * u.cos() * v.cos()]);
+        }
+    }
+    let skp = uniform_sampling(&sphere, 4.0).unwrap();
+    let c = fpfh_at(&sphere, &skp, [0.0, 0.0, 500.0]);
+    let mean_same: f32 = same.iter().sum::<f32>() / same.len() as f32;
+    let flat_plate: Vec<usize> = (0..keypoints.len())
+        .filter(|&i| {
+            shape[keypoints[i] as usize][0] > 35.0 && shape[keypoints[i] as usize][0] < 50.0
+        })
+        .collect();
+    let mean_other: f32 = flat_plate
+        .iter()
+        .map(|&i| c.iter().map(|d| l1(&a[i], d)).fold(f32::MAX, f32::min))
+        .sum::<f32>()
+        / flat_plate.len() as f32;
+    assert!(
+        mean_other > 20.0 * mean_same.max(0.05),
+        "different shapes: {mean_other} vs same shape moved: {mean_same}"
+    );
+}
+
+fn blob(origin: [f32; 3], n_side: usize) -> Vec<Point> {
+    let mut v = Vec::new();
+    for i in 0..n_side {
+        for j in 0..n_side {
+            v.push([origin[0] + i as f32, origin[1] + j as f32, origin[2]]);
+        }
+    }
+    v
+}
+
+#[test]
+fn euclidean_clusters_counts_sizes_and_filters() {
+    let mut pts = blob([0.0, 0.0, 0.0], 10); // 100
+    pts.extend(blob([40.0, 0.0, 0.0], 15)); // 225
+    pts.extend(blob([0.0, 50.0, 5.0], 20)); // 400
+    let cloud = IndexedCloud::new(&pts).unwrap();
+    let sizes = |v: Vec<Vec<u32>>| v.iter().map(Vec::len).collect::<Vec<_>>();
+    let all = cloud.euclidean_clusters(1.5, 1, 10_000).unwrap();
+    assert_eq!(sizes(all.clone()), vec![100, 225, 400]);
+    assert_eq!(all[1][0], 100, "second blob starts at index 100");
+    assert!(all.iter().all(|c| c.windows(2).all(|w| w[0] < w[1])));
+    assert_eq!(
+        sizes(cloud.euclidean_clusters(1.5, 150, 10_000).unwrap()),
+        vec![225, 400]
+    );
+    assert_eq!(
+        sizes(cloud.euclidean_clusters(1.5, 1, 300).unwrap()),
+        vec![100, 225]
+    );
+    // A tolerance below the grid spacing shatters every blob into single points.
+    assert!(cloud.euclidean_clusters(0.5, 2, 10_000).unwrap().is_empty());
+    assert!(cloud.euclidean_clusters(1.5, 0, 10).is_err());
+}
+
+#[test]
+fn sac_rejector_keeps_planted_inliers_and_drops_outliers() {
+    let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
+    let source: Vec<Point> = (0..100)
+        .map(|_| [rng.next() * 100.0, rng.next() * 100.0, rng.next() * 100.0])
+        .collect();
+    let truth = iso([0.2, 1.0, 0.3], 35.0, [10.0, 20.0, -5.0]);
+    let target = apply(&truth, &source);
+    let mut corrs = Vec::new();
+    for i in 0..100u32 {
+        // 70 true pairs; 30 pairs pointing at a different point (far away from the truth).
+        let matched = if i % 10 < 7 { i } else { (i + 37) % 100 };
+        corrs.push(Correspondence {
+            query: i,
+            matched,
+            distance: 0.0,
+        });
+    }
+    let planted_outlier = |c: &Correspondence| c.query != c.matched;
+    let out = reject_sample_consensus(&source, &target, &corrs, 1.0, 50).unwrap();
+    let kept_inliers = out.kept.iter().filter(|c| !planted_outlier(c)).count();
+    let kept_outliers = out.kept.iter().filter(|c| planted_outlier(c)).count();
+    assert_eq!(kept_inliers, 70);
+    assert_eq!(kept_outliers, 0);
+    let (rot, trans) = pose_error(&out.transform, &truth);
+    assert!(rot < 0.01 && trans < 0.01, "{rot} deg, {trans} mm");
+    let m = from_mat4(&out.transform);
+    let det = m.fixed_view::<3, 3>(0, 0).determinant();
+    assert!((det - 1.0).abs() < 1e-5, "det {det}");
+
+    // Deterministic: the same call gives the same answer.
+    assert_eq!(
+        reject_sample_consensus(&source, &target, &corrs, 1.0, 50).unwrap(),
+        out
+    );
+
+    // SVD on the kept pairs gives the same transform.
+    let svd = estimate_svd(&source, &target, &out.kept).unwrap();
+    let (rot, trans) = pose_error(&svd, &truth);
+    assert!(rot < 0.01 && trans < 0.01, "SVD: {rot} deg, {trans} mm");
+}
+
+#[test]
+fn uniform_sampling_returns_input_points_at_most_one_per_cell() {
+    let mut rng = Rng(42);
+    let pts: Vec<Point> = (0..5000)
+        .map(|_| {
+            [
+                rng.next() * 50.0 - 10.0,
+                rng.next() * 50.0,
+                rng.next() * 20.0,
+            ]
+        })
+        .collect();
+    let leaf = 5.0f32;
+    let idx = uniform_sampling(&pts, leaf).unwrap();
+    assert!(idx.windows(2).all(|w| w[0] < w[1]), "ascending, unique");
+    assert!(idx.iter().all(|&i| (i as usize) < pts.len()));
+    // PCL computes cells with float multiplications by the inverse leaf.
+    let inv = 1.0f32 / leaf;
+    let cell = |p: &Point| p.map(|c| (c * inv).floor() as i32);
+    let kept: std::collections::HashSet<_> = idx.iter().map(|&i| cell(&pts[i as usize])).collect();
+    assert_eq!(kept.len(), idx.len(), "at most one keypoint per cell");
+    let occupied: std::collections::HashSet<_> = pts.iter().map(cell).collect();
+    assert_eq!(kept, occupied, "every occupied cell has its keypoint");
+
+    // The voxel grid returns one centroid per occupied cell too (new points).
+    assert_eq!(voxel_grid(&pts, leaf).unwrap().len(), occupied.len());
+}
+
+#[test]
+fn plane_segmentation_removes_the_floor_and_keeps_objects() {
+    let mut rng = Rng(7);
+    let mut pts = Vec::new();
+    for i in 0..150 {
+        for j in 0..100 {
+            pts.push([i as f32 * 2.0, j as f32 * 2.0, (rng.next() - 0.5) * 0.4]);
+        }
+    }
+    let floor = pts.len();
+    for p in bracket() {
+        pts.push([p[0] + 100.0, p[1] + 60.0, p[2] + 8.0]);
+    }
+    let plane = segment_plane(&pts, 1.0, 200).unwrap().expect("a floor");
+    assert_eq!(plane.inliers.len(), floor);
+    assert!(plane.inliers.iter().all(|&i| (i as usize) < floor));
+    let n = plane.coefficients;
+    assert!(n[2].abs() > 0.999, "floor normal is vertical: {n:?}");
+}
+
+#[test]
+fn normals_follow_the_viewpoint() {
+    let pts = blob([0.0, 0.0, 0.0], 20);
+    let up = estimate_normals(&pts, 3.0, [10.0, 10.0, 100.0], 1).unwrap();
+    let down = estimate_normals(&pts, 3.0, [10.0, 10.0, -100.0], 2).unwrap();
+    assert!(up.iter().all(|n| n.normal[2] > 0.999));
+    assert!(down.iter().all(|n| n.normal[2] < -0.999));
+}
+
+#[test]
+fn feature_matching_pairs_each_source_descriptor_with_its_twin() {
+    let shape = bracket();
+    let kp = uniform_sampling(&shape, 4.0).unwrap();
+    let f = fpfh_at(&shape, &kp, [30.0, 20.0, 500.0]);
+    let rev: Vec<_> = f.iter().rev().copied().collect();
+    let corrs = match_features(&f, &rev).unwrap();
+    assert_eq!(corrs.len(), f.len());
+    // Flat regions repeat the same descriptor, so the twin is not always the only answer;
+    // what must hold is that each match is an identical descriptor at distance 0.
+    for c in &corrs {
+        assert_eq!(rev[c.matched as usize], f[c.query as usize], "{c:?}");
+        assert!(c.distance < 1e-6, "{c:?}");
+    }
+    let exact = corrs
+        .iter()
+        .filter(|c| c.matched as usize == f.len() - 1 - c.query as usize)
+        .count();
+    assert!(
+        exact * 2 > f.len(),
+        "most descriptors are unique: {exact} of {}",
+        f.len()
+    );
+    assert!(corrs.iter().all(|c| c.distance >= 0.0));
+}
+
+#[test]
+fn bad_input_is_an_error_not_a_crash() {
+    let msg = |e: Error| e.to_string();
+    assert!(msg(uniform_sampling(&[], 1.0).unwrap_err()).contains("empty"));
+    assert!(
+        msg(uniform_sampling(&[[0.0, f32::NAN, 0.0]], 1.0).unwrap_err()).contains("non-finite")
+    );
+    assert!(
+        msg(uniform_sampling(&[[0.0; 3], [1000.0; 3]], 1e-6).unwrap_err()).contains("too small")
+    );
+    assert!(voxel_grid(&[[0.0; 3], [1e6; 3]], 1e-3).is_err());
+    assert!(uniform_sampling(&[[0.0; 3]], -1.0).is_err());
+    assert!(IndexedCloud::new(&[]).is_err());
+    assert!(IndexedCloud::new(&[[f32::INFINITY, 0.0, 0.0]]).is_err());
+    let pts = bracket();
+    let cloud = IndexedCloud::new(&pts).unwrap();
+    assert!(
+        cloud
+            .fpfh(
+                &[u32::MAX],
+                &FpfhParams {
+                    feature_radius: 5.0,
+                    normal_radius: 4.0,
+                    viewpoint: [0.0; 3],
+                    threads: 1
+                }
+            )
+            .is_err()
+    );
+    assert!(
+        cloud
+            .fpfh(
+                &[0],
+                &FpfhParams {
+                    feature_radius: f32::NAN,
+                    normal_radius: 4.0,
+                    viewpoint: [0.0; 3],
+                    threads: 1
+                }
+            )
+            .is_err()
+    );
+    let c = |q, m| Correspondence {
+        query: q,
+        matched: m,
+        distance: 0.0,
+    };
+    assert!(reject_sample_consensus(&pts, &pts, &[c(0, 0), c(1, 1)], 1.0, 50).is_err());
+    assert!(
+        reject_sample_consensus(&pts, &pts, &[c(0, 0), c(1, 1), c(2, 99_999)], 1.0, 50).is_err()
+    );
+    assert!(estimate_svd(&pts, &pts, &[c(0, 0)]).is_err());
+    let icp = |iters, dist| {
+        cloud.icp(
+            &pts,
+            &IcpParams {
+                initial: to_mat4(&Isometry3::identity()),
+                max_correspondence_distance: dist,
+                max_iterations: iters,
+                transformation_epsilon: 1e-7,
+            },
+        )
+    };
+    assert!(icp(0, 5.0).is_err());
+    assert!(icp(10, -1.0).is_err());
+    let mut bad_guess = to_mat4(&Isometry3::identity());
+    bad_guess[3] = f64::NAN;
+    assert!(
+        cloud
+            .icp(
+                &pts,
+                &IcpParams {
+                    initial: bad_guess,
+                    max_correspondence_distance: 5.0,
+                    max_iterations: 5,
+                    transformation_epsilon: 1e-7
+                }
+            )
+            .is_err()
+    );
+    assert!(match_features(&[[f32::NAN; 33]], &[[0.0; 33]]).is_err());
+    assert!(segment_plane(&pts[..2], 1.0, 10).is_err());
+    // All points collinear: PCL finds no plane; reported as None, not garbage.
+    let line: Vec<Point> = (0..50).map(|i| [i as f32, 0.0, 0.0]).collect();
+    assert!(segment_plane(&line, 0.1, 50).unwrap().is_none());
+}
+
+#[test]
+fn the_bridge_survives_calls_from_several_threads() {
+    use rayon::prelude::*;
+    let model = bracket();
+    let truth = iso([0.0, 0.0, 1.0], 4.0, [2.0, 1.0, 0.0]);
+    let scene = IndexedCloud::new(&apply(&truth, &model)).unwrap();
+    let params = IcpParams {
+        initial: to_mat4(&Isometry3::identity()),
+        max_correspondence_distance: 10.0,
+        max_iterations: 50,
+        transformation_epsilon: 1e-7,
+    };
+    let kp = uniform_sampling(&model, 3.0).unwrap();
+    let fp = FpfhParams {
+        feature_radius: 7.0,
+        normal_radius: 5.6,
+        viewpoint: [0.0, 0.0, 300.0],
+        threads: 2,
+    };
+    let reference_icp = scene.icp(&model, &params).unwrap();
+    let model_cloud = IndexedCloud::new(&model).unwrap();
+    let reference_fpfh = model_cloud.fpfh(&kp, &fp).unwrap();
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(8)
+        .build()
+        .unwrap();
+    pool.install(|| {
+        (0..32).into_par_iter().for_each(|i| {
+            if i % 2 == 0 {
+                assert_eq!(scene.icp(&model, &params).unwrap(), reference_icp);
+            } else {
+                assert_eq!(model_cloud.fpfh(&kp, &fp).unwrap(), reference_fpfh);
+                assert_eq!(uniform_sampling(&model, 3.0).unwrap(), kp);
+            }
+        });
+    });
+}
