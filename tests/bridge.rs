@@ -1,5 +1,6 @@
 //! Properties of the PCL bridge: each test fails if the wrapped PCL primitive, or the way the
 //! bridge feeds it, is wrong.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use binpick_pcl::{
     Correspondence, Error, FpfhParams, IcpParams, IndexedCloud, Mat4, Point, estimate_normals,

@@ -119,7 +119,10 @@ impl ModelInfo {
         if !(info.diameter.is_finite() && info.diameter > 0.0) {
             return Err(DatasetError::Invalid {
                 path: path.to_owned(),
-                message: format!("diameter must be a positive number of mm, got {}", info.diameter),
+                message: format!(
+                    "diameter must be a positive number of mm, got {}",
+                    info.diameter
+                ),
             });
         }
         if info.symmetries.is_empty() {
@@ -260,7 +263,12 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("m.json");
         std::fs::write(&path, r#"{"diameter": -1, "symmetries": []}"#).unwrap();
-        assert!(ModelInfo::load(&path).unwrap_err().to_string().contains("diameter"));
+        assert!(
+            ModelInfo::load(&path)
+                .unwrap_err()
+                .to_string()
+                .contains("diameter")
+        );
         std::fs::write(&path, r#"{"diameter": 120.5}"#).unwrap();
         assert_eq!(ModelInfo::load(&path).unwrap().symmetries, vec![IDENTITY]);
     }

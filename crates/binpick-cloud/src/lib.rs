@@ -76,9 +76,9 @@ impl PointCloud {
             max: first,
         };
         for p in &self.points[1..] {
-            for i in 0..3 {
-                b.min[i] = b.min[i].min(p[i]);
-                b.max[i] = b.max[i].max(p[i]);
+            for (i, &c) in p.iter().enumerate() {
+                b.min[i] = b.min[i].min(c);
+                b.max[i] = b.max[i].max(c);
             }
         }
         Some(b)
@@ -122,8 +122,8 @@ impl PointCloud {
         }
         let mut s = [0.0f64; 3];
         for p in &self.points {
-            for i in 0..3 {
-                s[i] += f64::from(p[i]);
+            for (acc, &c) in s.iter_mut().zip(p) {
+                *acc += f64::from(c);
             }
         }
         let n = self.points.len() as f64;
@@ -195,7 +195,9 @@ pub enum PoseError {
     NonFinite,
     #[error("pose's last row is {0:?}, expected [0, 0, 0, 1]")]
     BadLastRow([f64; 4]),
-    #[error("pose's 3x3 block is not a rotation (|R^T R - I| = {orthogonality:.2e}, det = {det:.4})")]
+    #[error(
+        "pose's 3x3 block is not a rotation (|R^T R - I| = {orthogonality:.2e}, det = {det:.4})"
+    )]
     NotRotation { orthogonality: f64, det: f64 },
 }
 
@@ -248,8 +250,8 @@ mod tests {
         let back = pose_from_row_major(&m).unwrap();
         assert!((back.to_homogeneous() - pose.to_homogeneous()).norm() < 1e-12);
         let mut reflected = m;
-        for c in 0..3 {
-            reflected[c] = -reflected[c];
+        for v in &mut reflected[..3] {
+            *v = -*v;
         }
         assert!(matches!(
             pose_from_row_major(&reflected),
@@ -257,7 +259,10 @@ mod tests {
         ));
         let mut bad = m;
         bad[12] = 0.5;
-        assert!(matches!(pose_from_row_major(&bad), Err(PoseError::BadLastRow(_))));
+        assert!(matches!(
+            pose_from_row_major(&bad),
+            Err(PoseError::BadLastRow(_))
+        ));
     }
 
     #[test]

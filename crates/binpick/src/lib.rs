@@ -1,1 +1,61 @@
-//! Recognition pipeline (being written).
+//! binpick: finds every visible instance of a part in a 3D scan of a bin, returns each one's
+//! 6-DOF pose with validation scores, and ranks them for picking.
+//!
+//! It implements the pipeline of S. Squizzato, "Robot bin picking: 3D pose retrieval based on
+//! Point Cloud Library" (thesis chapters 3-4) over the real PCL, reached through
+//! [`binpick_pcl`]. Units are millimetres throughout.
+//!
+//! ```no_run
+//! use binpick::{Params, Recognizer, load_cloud};
+//! # fn main() -> binpick::Result<()> {
+//! let params = Params::default();
+//! let (model, _) = load_cloud("model.pcd".as_ref(), params.units)?;
+//! let recognizer = Recognizer::new(&model, params)?; // model features computed once
+//! let (scene, _) = load_cloud("scan.pcd".as_ref(), binpick::Units::Millimetres)?;
+//! let result = recognizer.recognize(&scene)?;
+//! if let Some(best) = result.detections.first() {
+//!     println!("pick at {}", best.pose.translation.vector);
+//! }
+//! # Ok(()) }
+//! ```
+
+pub mod align;
+mod deadline;
+pub mod error;
+pub mod features;
+pub mod model;
+pub mod params;
+pub mod pose;
+pub mod rank;
+pub mod recognizer;
+pub mod scene;
+pub mod validate;
+
+pub use binpick_cloud::{Point, PointCloud, Units};
+pub use error::{Error, Result};
+pub use params::{Algorithm, FeatureSurface, ParamError, Params, Preset};
+pub use recognizer::{ClusterReport, Detection, Recognition, Recognizer, Timings};
+
+use std::path::Path;
+
+/// Reads a PCD or PLY cloud and converts it to millimetres from `units`.
+pub fn load_cloud(
+    path: &Path,
+    units: Units,
+) -> Result<(PointCloud, binpick_cloud::io::LoadReport)> {
+    let (mut cloud, report) = binpick_cloud::io::read_cloud(path)?;
+    let f = units.to_mm();
+    if f != 1.0 {
+        cloud.scale(f);
+    }
+    Ok((cloud, report))
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn recognizer_is_send_and_sync() {
+        fn check<T: Send + Sync>() {}
+        check::<super::Recognizer>();
+    }
+}

@@ -1,0 +1,152 @@
+//! Greedy pick ranking (thesis 1.2 step 3, 5.4.3): the first detection is the one to pick.
+//!
+//! Order: the final score (percent of outliers, 3.1.2) measures occlusion, so lower is
+//! better. Scores within the same band of `rank_score_band_pct` percentage points count as
+//! equal, and within a band the part highest in the pile (largest height along `up`) goes
+//! first: nothing can lie on top of it. Remaining ties: lower final score, then lower
+//! cluster index and round, so the order is total and deterministic. With a band of 0 the
+//! ranking is the thesis's: best final score first.
+
+use crate::recognizer::Detection;
+
+fn band_of(score: f64, band: f64) -> i64 {
+    if band > 0.0 {
+        (score / band).floor() as i64
+    } else {
+        0
+    }
+}
+
+/// Sorts `detections` into pick order, sets `rank` (1-based) and `rank_reason`.
+pub fn rank_detections(detections: &mut [Detection], band: f64) {
+    let key_band = |d: &Detection| {
+        if band > 0.0 {
+            band_of(d.final_score, band)
+        } else {
+            0
+        }
+    };
+    detections.sort_by(|a, b| {
+        if band > 0.0 {
+            key_band(a)
+                .cmp(&key_band(b))
+                .then(b.height_mm.total_cmp(&a.height_mm))
+        } else {
+            std::cmp::Ordering::Equal
+        }
+        .then(a.final_score.total_cmp(&b.final_score))
+        .then(a.cluster.cmp(&b.cluster))
+        .then(a.cluster_round.cmp(&b.cluster_round))
+    });
+    let bands: Vec<i64> = detections.iter().map(key_band).collect();
+    for (i, d) in detections.iter_mut().enumerate() {
+        d.rank = i + 1;
+        d.rank_reason = if band > 0.0 {
+            let b = bands[i];
+            let in_band = bands.iter().filter(|&&x| x == b).count();
+            let position = bands[..i].iter().filter(|&&x| x == b).count() + 1;
+            let lo = b as f64 * band;
+            let tie = if in_band > 1 {
+                format!(
+                    "; {} of {in_band} in the band by height ({:.1} mm)",
+                    ordinal(position),
+                    d.height_mm
+                )
+            } else {
+                String::new()
+            };
+            format!(
+                "occlusion band {lo:.1}-{:.1} % (final score {:.2} % outliers){tie}",
+                lo + band,
+                d.final_score
+            )
+        } else {
+            format!(
+                "final score {:.2} % outliers (ranked by score only)",
+                d.final_score
+            )
+        };
+    }
+}
+
+fn ordinal(n: usize) -> String {
+    let suffix = match (n % 10, n % 100) {
+        (1, x) if x != 11 => "st",
+        (2, x) if x != 12 => "nd",
+        (3, x) if x != 13 => "rd",
+        _ => "th",
+    };
+    format!("{n}{suffix}")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::align::IcpReport;
+    use nalgebra::Isometry3;
+
+    fn det(cluster: usize, score: f64, height: f64) -> Detection {
+        Detection {
+            rank: 0,
+            pose: Isometry3::identity(),
+            initial_pose: Isometry3::identity(),
+            initial_score: 1.0,
+            final_score: score,
+            score_before_icp: score,
+            cluster,
+            cluster_round: 0,
+            fpfh_radius_mm: Some(10.0),
+            sac_threshold_mm: 1.0,
+            sac_inliers: 10,
+            icp: IcpReport {
+                converged: true,
+                iterations: 3,
+                fitness_mm2: 0.1,
+                adopted: true,
+                error: None,
+            },
+            height_mm: height,
+            rank_reason: String::new(),
+        }
+    }
+
+    #[test]
+    fn band_then_height_then_score() {
+        // Scores 1.5 and 0.5 share the 0-2 % band: the higher part (cluster 1) goes first
+        // although its score is slightly worse; 3.0 is in the next band; 12 last.
+        let mut d = vec![
+            det(0, 0.5, 10.0),
+            det(1, 1.5, 40.0),
+            det(2, 12.0, 90.0),
+            det(3, 3.0, 100.0),
+        ];
+        rank_detections(&mut d, 2.0);
+        let order: Vec<usize> = d.iter().map(|x| x.cluster).collect();
+        assert_eq!(order, vec![1, 0, 3, 2]);
+        assert_eq!(
+            d.iter().map(|x| x.rank).collect::<Vec<_>>(),
+            vec![1, 2, 3, 4]
+        );
+        assert!(
+            d[0].rank_reason.contains("1st of 2"),
+            "{}",
+            d[0].rank_reason
+        );
+        assert!(
+            d[2].rank_reason.contains("band 2.0-4.0"),
+            "{}",
+            d[2].rank_reason
+        );
+    }
+
+    #[test]
+    fn zero_band_is_score_only_with_cluster_tie_break() {
+        let mut d = vec![det(2, 5.0, 0.0), det(0, 1.0, 0.0), det(1, 5.0, 99.0)];
+        rank_detections(&mut d, 0.0);
+        assert_eq!(
+            d.iter().map(|x| x.cluster).collect::<Vec<_>>(),
+            vec![0, 1, 2]
+        );
+        assert!(d[0].rank_reason.contains("score only"));
+    }
+}
