@@ -4,13 +4,88 @@
 #include <pcl/registration/icp.h>
 #include <pcl/registration/transformation_estimation_svd.h>
 
+#include <flann/flann.hpp>
+
 #include <cmath>
 
 #include "binpick-pcl/src/ffi.rs.h"
 #include "internal.h"
 
 namespace binpick {
+
+// The same FLANN index pcl::KdTreeFLANN builds (single kd-tree, 15 points per leaf, exact
+// search), kept here so ICP can query all its source points in one call.
+struct BatchIndex {
+  std::vector<float> xyz;
+  std::unique_ptr<flann::Index<flann::L2_Simple<float>>> index;
+};
+
+const BatchIndex& batch_index(const Cloud::Impl& cloud) {
+  std::call_once(cloud.batch_once, [&cloud] {
+    auto b = std::make_shared<BatchIndex>();
+    const auto& pts = cloud.points->points;
+    b->xyz.reserve(pts.size() * 3);
+    for (const auto& p : pts) {
+      b->xyz.push_back(p.x);
+      b->xyz.push_back(p.y);
+      b->xyz.push_back(p.z);
+    }
+    b->index = std::make_unique<flann::Index<flann::L2_Simple<float>>>(
+        flann::Matrix<float>(b->xyz.data(), pts.size(), 3), flann::KDTreeSingleIndexParams(15));
+    b->index->buildIndex();
+    cloud.batch = std::move(b);
+  });
+  return *cloud.batch;
+}
+
 namespace {
+
+// PCL's CorrespondenceEstimation with the same answers, but one FLANN call per ICP iteration
+// instead of one per source point: PCL's per-point path enters an OpenMP region and allocates
+// for every query, which made that overhead most of ICP's time. Nearest neighbours come from
+// an index identical to PCL's KdTreeFLANN, so correspondences are the same as PCL's.
+class BatchCorrespondenceEstimation
+    : public pcl::registration::CorrespondenceEstimation<pcl::PointXYZ, pcl::PointXYZ, double> {
+ public:
+  explicit BatchCorrespondenceEstimation(const BatchIndex* index) : index_(index) {}
+
+  void determineCorrespondences(pcl::Correspondences& correspondences,
+                                double max_distance) override {
+    if (!initCompute()) return;
+    const std::size_t n = indices_->size();
+    std::vector<float> queries(n * 3);
+    for (std::size_t i = 0; i < n; ++i) {
+      const auto& p = (*input_)[(*indices_)[i]];
+      queries[3 * i] = p.x;
+      queries[3 * i + 1] = p.y;
+      queries[3 * i + 2] = p.z;
+    }
+    std::vector<int> nn(n);
+    std::vector<float> d2(n);
+    flann::Matrix<int> nn_mat(nn.data(), n, 1);
+    flann::Matrix<float> d2_mat(d2.data(), n, 1);
+    flann::SearchParams params(-1, 0.0f);  // as pcl::KdTreeFLANN: exact, one core
+    index_->index->knnSearch(flann::Matrix<float>(queries.data(), n, 3), nn_mat, d2_mat, 1, params);
+    const double max_dist_sqr = max_distance * max_distance;
+    correspondences.resize(n);
+    std::size_t valid = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+      if (d2[i] > max_dist_sqr) continue;
+      correspondences[valid++] = pcl::Correspondence((*indices_)[i], nn[i], d2[i]);
+    }
+    correspondences.resize(valid);
+    deinitCompute();
+  }
+
+  typename pcl::registration::CorrespondenceEstimationBase<pcl::PointXYZ, pcl::PointXYZ,
+                                                           double>::Ptr
+  clone() const override {
+    return std::make_shared<BatchCorrespondenceEstimation>(*this);
+  }
+
+ private:
+  const BatchIndex* index_;
+};
 
 using FeatureCloud = pcl::PointCloud<pcl::FPFHSignature33>;
 
@@ -159,6 +234,10 @@ IcpResult icp_align(const Cloud& target, rust::Slice<const float> source_xyz,
   const auto& t = target.impl();
 
   CountingIcp icp;
+  if (params.batch_correspondences) {
+    icp.setCorrespondenceEstimation(
+        std::make_shared<BatchCorrespondenceEstimation>(&batch_index(t)));
+  }
   icp.setInputSource(src);
   icp.setInputTarget(t.points);
   icp.setSearchMethodTarget(t.tree, /*force_no_recompute=*/true);

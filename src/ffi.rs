@@ -31,6 +31,9 @@ pub(crate) mod bridge {
         max_correspondence_distance: f64,
         max_iterations: u32,
         transformation_epsilon: f64,
+        /// Answer each iteration's nearest-neighbour queries in one FLANN call (same results
+        /// as PCL's per-point search, several times faster).
+        batch_correspondences: bool,
     }
 
     struct IcpResult {

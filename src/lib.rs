@@ -268,6 +268,10 @@ pub struct IcpParams {
     pub max_correspondence_distance: f64,
     pub max_iterations: u32,
     pub transformation_epsilon: f64,
+    /// Find each iteration's correspondences with one batched FLANN query over the same index
+    /// PCL builds, instead of PCL's one query per point: identical correspondences, several
+    /// times faster. `false` runs PCL's default `CorrespondenceEstimation`.
+    pub batch_correspondences: bool,
 }
 
 /// Why ICP stopped (`pcl::registration::DefaultConvergenceCriteria::ConvergenceState`).
@@ -408,6 +412,7 @@ impl IndexedCloud {
             max_correspondence_distance: params.max_correspondence_distance,
             max_iterations: params.max_iterations,
             transformation_epsilon: params.transformation_epsilon,
+            batch_correspondences: params.batch_correspondences,
         };
         let r = bridge::icp_align(self.cloud(), flat(source), &p).map_err(pcl_err(CALL))?;
         check_proper(CALL, &r.transform)?;

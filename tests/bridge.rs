@@ -96,6 +96,7 @@ fn icp_recovers_a_known_rigid_transform() {
                 max_correspondence_distance: 20.0,
                 max_iterations: 50,
                 transformation_epsilon: 1e-7,
+                batch_correspondences: true,
             },
         )
         .unwrap();
@@ -104,6 +105,46 @@ fn icp_recovers_a_known_rigid_transform() {
     assert!(rot < 0.1, "rotation error {rot} deg");
     assert!(trans < 0.1, "translation error {trans} mm");
     assert!(out.fitness < 1e-3, "fitness {}", out.fitness);
+}
+
+#[test]
+fn batched_icp_correspondences_match_pcl_exactly() {
+    // Noisy, partial target so that ICP takes many iterations with changing correspondences.
+    let model = bracket();
+    let truth = iso([0.2, 0.9, -0.4], 5.0, [3.0, 2.0, -1.5]);
+    let mut rng = Rng(99);
+    let target: Vec<Point> = apply(&truth, &model)
+        .into_iter()
+        .filter(|p| p[1] > 5.0)
+        .map(|p| {
+            [
+                p[0] + 0.2 * (rng.next() - 0.5),
+                p[1] + 0.2 * (rng.next() - 0.5),
+                p[2] + 0.2 * (rng.next() - 0.5),
+            ]
+        })
+        .collect();
+    let cloud = IndexedCloud::new(&target).unwrap();
+    let run = |batch| {
+        cloud
+            .icp(
+                &model,
+                &IcpParams {
+                    initial: to_mat4(&Isometry3::identity()),
+                    max_correspondence_distance: 8.0,
+                    max_iterations: 50,
+                    transformation_epsilon: 1e-7,
+                    batch_correspondences: batch,
+                },
+            )
+            .unwrap()
+    };
+    let (plain, batched) = (run(false), run(true));
+    assert!(plain.iterations > 5, "{plain:?}");
+    assert_eq!(
+        plain, batched,
+        "identical transform, iterations, fitness and stop reason"
+    );
 }
 
 fn fpfh_at(points: &[Point], keypoints: &[u32], viewpoint: Point) -> Vec<[f32; 33]> {
@@ -396,6 +437,7 @@ fn bad_input_is_an_error_not_a_crash() {
                 max_correspondence_distance: dist,
                 max_iterations: iters,
                 transformation_epsilon: 1e-7,
+                batch_correspondences: true,
             },
         )
     };
@@ -411,7 +453,8 @@ fn bad_input_is_an_error_not_a_crash() {
                     initial: bad_guess,
                     max_correspondence_distance: 5.0,
                     max_iterations: 5,
-                    transformation_epsilon: 1e-7
+                    transformation_epsilon: 1e-7,
+                    batch_correspondences: true,
                 }
             )
             .is_err()
@@ -434,6 +477,7 @@ fn the_bridge_survives_calls_from_several_threads() {
         max_correspondence_distance: 10.0,
         max_iterations: 50,
         transformation_epsilon: 1e-7,
+        batch_correspondences: true,
     };
     let kp = uniform_sampling(&model, 3.0).unwrap();
     let fp = FpfhParams {

@@ -5,6 +5,8 @@
 #include <pcl/point_types.h>
 #include <pcl/search/kdtree.h>
 
+#include <memory>
+#include <mutex>
 #include <sstream>
 #include <stdexcept>
 #include <string>
@@ -15,10 +17,19 @@ namespace binpick {
 
 using PointCloudXYZ = pcl::PointCloud<pcl::PointXYZ>;
 
+// A FLANN index answering many nearest-neighbour queries in one call (registration.cpp).
+struct BatchIndex;
+
 struct Cloud::Impl {
   PointCloudXYZ::Ptr points;
   pcl::search::KdTree<pcl::PointXYZ>::Ptr tree;
+  // Built on first use by ICP (std::call_once keeps a shared Cloud thread-safe).
+  mutable std::once_flag batch_once;
+  mutable std::shared_ptr<const BatchIndex> batch;
 };
+
+// The cloud's batch index, built on first call.
+const BatchIndex& batch_index(const Cloud::Impl& cloud);
 
 // Throws std::invalid_argument with a message built from the arguments.
 template <typename... Args>

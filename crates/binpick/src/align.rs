@@ -3,7 +3,7 @@
 
 use nalgebra::Isometry3;
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use binpick_cloud::Point;
 use binpick_pcl::{Correspondence, IcpParams, IndexedCloud};
@@ -230,12 +230,13 @@ impl FinalWorld {
 }
 
 /// What ICP did for one detection.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct IcpReport {
     pub converged: bool,
     pub iterations: u32,
-    /// PCL's fitness: mean squared distance of matched points, mm^2.
-    pub fitness_mm2: f64,
+    /// PCL's fitness: mean squared distance of matched points, mm^2 (None if ICP failed or
+    /// matched nothing).
+    pub fitness_mm2: Option<f64>,
     /// Whether the ICP pose scored better than the initial one and was adopted (step 3d).
     pub adopted: bool,
     /// Set when PCL's ICP failed; the initial pose is kept.
@@ -272,6 +273,7 @@ pub(crate) fn final_alignment(
             max_correspondence_distance: params.icp_max_correspondence_mm,
             max_iterations: params.icp_iterations,
             transformation_epsilon: params.icp_transformation_epsilon,
+            batch_correspondences: true,
         },
     );
     let (refined, mut report) = match icp {
@@ -280,7 +282,8 @@ pub(crate) fn final_alignment(
             IcpReport {
                 converged: out.converged,
                 iterations: out.iterations,
-                fitness_mm2: out.fitness,
+                fitness_mm2: (out.fitness.is_finite() && out.fitness < 1e300)
+                    .then_some(out.fitness),
                 adopted: false,
                 error: None,
             },
@@ -290,7 +293,7 @@ pub(crate) fn final_alignment(
             IcpReport {
                 converged: false,
                 iterations: 0,
-                fitness_mm2: f64::NAN,
+                fitness_mm2: None,
                 adopted: false,
                 error: Some(e.to_string()),
             },

@@ -22,12 +22,15 @@
 pub mod align;
 mod deadline;
 pub mod error;
+pub mod eval;
+pub mod evaluate;
 pub mod features;
 pub mod model;
 pub mod params;
 pub mod pose;
 pub mod rank;
 pub mod recognizer;
+pub mod report;
 pub mod scene;
 pub mod validate;
 
@@ -35,6 +38,7 @@ pub use binpick_cloud::{Point, PointCloud, Units};
 pub use error::{Error, Result};
 pub use params::{Algorithm, FeatureSurface, ParamError, Params, Preset};
 pub use recognizer::{ClusterReport, Detection, Recognition, Recognizer, Timings};
+pub use report::{DetectionRecord, RecognitionReport};
 
 use std::path::Path;
 

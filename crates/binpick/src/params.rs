@@ -617,6 +617,26 @@ impl Params {
         toml::from_str(text)
     }
 
+    /// Applies the keys of a TOML config on top of `base` (e.g. a preset): keys not in the file
+    /// keep `base`'s values, nested tables (`[support]`) merge key by key, unknown keys are an
+    /// error.
+    pub fn from_toml_over(base: &Params, text: &str) -> Result<Self, toml::de::Error> {
+        fn merge(into: &mut toml::Table, from: toml::Table) {
+            for (k, v) in from {
+                match (into.get_mut(&k), v) {
+                    (Some(toml::Value::Table(a)), toml::Value::Table(b)) => merge(a, b),
+                    (_, v) => {
+                        into.insert(k, v);
+                    }
+                }
+            }
+        }
+        let overrides: toml::Table = toml::from_str(text)?;
+        let mut table: toml::Table = toml::from_str(&base.to_toml())?;
+        merge(&mut table, overrides);
+        table.try_into()
+    }
+
     /// The config as TOML (the file written next to every output).
     pub fn to_toml(&self) -> String {
         // Serialising plain data with finite floats cannot fail; fall back to Debug if it does.
@@ -700,6 +720,23 @@ mod tests {
         assert_eq!(partial.algorithm, Algorithm::MergedFpfh);
         assert_eq!(partial.initial_leaf_mm, 3.0);
         assert!(Params::from_toml("resolutoin_mm = 2.0").is_err());
+        let over = Params::from_toml_over(
+            &Preset::C3.params(),
+            "final_leaf_mm = 1.0\n[support]\ndistance_mm = 2.5\n",
+        )
+        .unwrap();
+        assert_eq!(over.final_leaf_mm, 1.0);
+        assert_eq!(over.support.distance_mm, 2.5);
+        assert_eq!(
+            over.support.max_planes, 5,
+            "other [support] keys keep the base value"
+        );
+        assert_eq!(
+            over.fpfh_radii_mm,
+            vec![3.0, 6.0, 9.0, 12.0],
+            "preset values survive"
+        );
+        assert!(Params::from_toml_over(&Params::default(), "[support]\nbogus = 1").is_err());
         let metres = Params::from_toml("units = \"m\"").unwrap();
         assert_eq!(metres.units, Units::Metres);
     }

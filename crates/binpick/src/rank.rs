@@ -101,7 +101,7 @@ mod tests {
             icp: IcpReport {
                 converged: true,
                 iterations: 3,
-                fitness_mm2: 0.1,
+                fitness_mm2: Some(0.1),
                 adopted: true,
                 error: None,
             },

@@ -18,7 +18,7 @@ use std::time::{Duration, Instant};
 
 use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use binpick_cloud::{Point, PointCloud};
 use binpick_pcl::IndexedCloud;
@@ -64,7 +64,7 @@ pub struct Detection {
 }
 
 /// What happened in one cluster.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ClusterReport {
     pub index: usize,
     pub points: usize,
@@ -75,7 +75,7 @@ pub struct ClusterReport {
 
 /// Wall-clock time per stage, milliseconds. `initial_alignment_ms` and `final_alignment_ms`
 /// add up the work of all worker threads, so with parallel clusters they can exceed `total_ms`.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Timings {
     /// Model preparation in `Recognizer::new` (once per model, not per scene).
     pub model_preparation_ms: f64,
@@ -206,6 +206,11 @@ impl Recognizer {
 
     pub fn model(&self) -> &PreparedModel {
         &self.model
+    }
+
+    /// Time spent preparing the model in `new`.
+    pub fn preparation(&self) -> Duration {
+        self.preparation
     }
 
     /// Worker threads in use.

@@ -1,7 +1,7 @@
 //! Scene preprocessing: region of interest, resolution voxel grid (thesis 4.3 #1) and removal
 //! of the supporting surface, each step reporting how many points it removed.
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use binpick_cloud::{Point, PointCloud};
 
@@ -9,7 +9,7 @@ use crate::error::{Result, input, pcl};
 use crate::params::Params;
 
 /// One removed supporting plane.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RemovedPlane {
     /// `a x + b y + c z + d = 0`, unit normal, mm.
     pub coefficients: [f32; 4],
@@ -17,7 +17,7 @@ pub struct RemovedPlane {
 }
 
 /// What preprocessing did, in points.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct PreprocessReport {
     pub input_points: usize,
     /// Dropped by the region of interest.
