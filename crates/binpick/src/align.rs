@@ -32,24 +32,42 @@ pub struct InitialAlignment {
     pub sac_inliers: usize,
 }
 
+/// How many of a cluster's best hypotheses are also tried composed with the model's
+/// near-symmetries.
+const SYMMETRY_EXPANDED: usize = 8;
+
 /// One hypothesis of the threshold sweep; `order` breaks score ties (first in loop order wins).
 struct Hypothesis {
     order: usize,
     alignment: InitialAlignment,
 }
 
-/// Thesis 4.1 step 1a-b for one cluster: keypoints, FPFH per radius, then Algorithm 1 or 2.
-/// `Ok(None)` when the cluster yields no transform at all (too few keypoints or no RANSAC
-/// consensus at any threshold).
+/// Thesis 4.1 step 1a-b for one cluster: keypoints, FPFH per radius, then Algorithm 1 or 2;
+/// the hypothesis with the best Euclidean score (step D). `Ok(None)` when the cluster yields
+/// no transform at all (too few keypoints or no RANSAC consensus at any threshold).
 pub(crate) fn initial_alignment(
     model: &PreparedModel,
     cluster: &[Point],
     params: &Params,
     deadline: &Deadline,
 ) -> Result<Option<InitialAlignment>> {
+    Ok(initial_hypotheses(model, cluster, params, deadline)?
+        .into_iter()
+        .next())
+}
+
+/// Every hypothesis of the sweep (one per correspondence set and threshold that produced a
+/// transform), best Euclidean score first; ties keep the loop order (earlier radius and
+/// threshold first).
+pub(crate) fn initial_hypotheses(
+    model: &PreparedModel,
+    cluster: &[Point],
+    params: &Params,
+    deadline: &Deadline,
+) -> Result<Vec<InitialAlignment>> {
     let kp_idx = keypoints(cluster, params.initial_leaf_mm)?;
     if kp_idx.len() < 3 {
-        return Ok(None);
+        return Ok(Vec::new());
     }
     let kp: Vec<Point> = kp_idx.iter().map(|&i| cluster[i as usize]).collect();
     let (surface, surface_kp) = feature_surface(cluster, &kp_idx, &kp, params.feature_surface)?;
@@ -107,11 +125,12 @@ pub(crate) fn initial_alignment(
         .map(|&(s, t)| {
             deadline.check("RANSAC threshold sweep")?;
             let (radius, corrs) = &sets[s];
+            let order = s * n_th + t;
             hypothesis(
                 model,
                 &kp,
                 &world,
-                corrs,
+                &shuffled(corrs, order as u64),
                 params.sac_thresholds_mm[t],
                 params,
             )
@@ -119,21 +138,79 @@ pub(crate) fn initial_alignment(
                 h.map(|mut a| {
                     a.fpfh_radius_mm = radius.map(|r| params.fpfh_radii_mm[r]);
                     Hypothesis {
-                        order: s * n_th + t,
+                        order,
                         alignment: a,
                     }
                 })
             })
         })
         .collect::<Result<_>>()?;
-    // Keep the best score (step D); ties go to the earliest radius / threshold.
-    let best = hypotheses.into_iter().flatten().min_by(|a, b| {
+    let mut all: Vec<Hypothesis> = hypotheses.into_iter().flatten().collect();
+    all.sort_by(|a, b| {
         a.alignment
             .score
             .total_cmp(&b.alignment.score)
             .then(a.order.cmp(&b.order))
     });
-    Ok(best.map(|h| h.alignment))
+    // The best few hypotheses, each composed with the model's near-symmetries (a flipped match
+    // T of a nearly symmetric part becomes T * S, close to the true pose), scored the same way.
+    let flips: Vec<Hypothesis> = all
+        .iter()
+        .take(SYMMETRY_EXPANDED)
+        .flat_map(|h| {
+            model.near_symmetries.iter().enumerate().map(|(k, s)| {
+                let pose = h.alignment.pose * s;
+                Hypothesis {
+                    order: jobs.len() * (k + 1) + h.order,
+                    alignment: InitialAlignment {
+                        pose,
+                        score: euclidean_score(&world, &model.initial_keypoints, &pose),
+                        ..h.alignment.clone()
+                    },
+                }
+            })
+        })
+        .collect();
+    all.extend(flips);
+    all.sort_by(|a, b| {
+        a.alignment
+            .score
+            .total_cmp(&b.alignment.score)
+            .then(a.order.cmp(&b.order))
+    });
+    Ok(all.into_iter().map(|h| h.alignment).collect())
+}
+
+/// [`initial_hypotheses`] without a time budget (diagnostics, tests).
+pub fn initial_hypotheses_unbounded(
+    model: &PreparedModel,
+    cluster: &[Point],
+    params: &Params,
+) -> Result<Vec<InitialAlignment>> {
+    initial_hypotheses(model, cluster, params, &Deadline::new(None))
+}
+
+/// The correspondences in a pseudo-random order fixed by `stream`. PCL seeds every RANSAC
+/// run with the same constant, so without this all thresholds of a sweep would draw the
+/// same sample triples; the thesis treats each run as an independent random draw (3.4.2.5).
+/// A fixed permutation per (radius, threshold) gives every run its own samples while keeping
+/// results deterministic.
+pub fn shuffled(corrs: &[Correspondence], stream: u64) -> Vec<Correspondence> {
+    // SplitMix64 (Steele et al. 2014), seeded per stream.
+    let mut state = 0x9E37_79B9_7F4A_7C15u64 ^ stream.wrapping_mul(0xD1B5_4A32_D192_ED03);
+    let mut next = move || {
+        state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    };
+    let mut out = corrs.to_vec();
+    for i in (1..out.len()).rev() {
+        let j = (next() % (i as u64 + 1)) as usize;
+        out.swap(i, j);
+    }
+    out
 }
 
 /// Algorithm 2 step 1b-iii: all radii's correspondences in one set, keeping for each model
@@ -155,7 +232,11 @@ fn merge_best_per_model_keypoint(
 }
 
 /// Steps A-C for one threshold: RANSAC rejection, SVD on the kept pairs, Euclidean score.
-/// `Ok(None)` when RANSAC finds no consensus or no proper rotation.
+/// With `consensus_modes` > 1, RANSAC runs again on the correspondences the previous
+/// consensus did not keep (sequential RANSAC), so a second, smaller consensus - typically
+/// the true pose of a nearly symmetric part whose flipped pose gathers more matches - is
+/// scored too; the best Euclidean score wins. `Ok(None)` when nothing yields a proper
+/// rotation.
 fn hypothesis(
     model: &PreparedModel,
     cluster_kp: &[Point],
@@ -164,50 +245,63 @@ fn hypothesis(
     threshold_mm: f64,
     params: &Params,
 ) -> Result<Option<InitialAlignment>> {
-    if corrs.len() < 3 {
-        return Ok(None);
-    }
-    let consensus = match binpick_pcl::reject_sample_consensus(
-        &model.initial_keypoints,
-        cluster_kp,
-        corrs,
-        threshold_mm as f32,
-        params.sac_iterations,
-    ) {
-        Ok(c) => c,
-        Err(
-            binpick_pcl::Error::NoConsensus { .. } | binpick_pcl::Error::ImproperRotation { .. },
-        ) => return Ok(None),
-        Err(e) => {
-            return Err(Error::Pcl {
-                stage: "RANSAC rejection",
-                source: e,
+    let mut remaining = corrs.to_vec();
+    let mut best: Option<InitialAlignment> = None;
+    for _ in 0..params.consensus_modes.max(1) {
+        if remaining.len() < 3 {
+            break;
+        }
+        let consensus = match binpick_pcl::reject_sample_consensus(
+            &model.initial_keypoints,
+            cluster_kp,
+            &remaining,
+            threshold_mm as f32,
+            params.sac_iterations,
+        ) {
+            Ok(c) => c,
+            Err(
+                binpick_pcl::Error::NoConsensus { .. }
+                | binpick_pcl::Error::ImproperRotation { .. },
+            ) => break,
+            Err(e) => {
+                return Err(Error::Pcl {
+                    stage: "RANSAC rejection",
+                    source: e,
+                });
+            }
+        };
+        if consensus.kept.len() < 3 {
+            break;
+        }
+        let kept: std::collections::HashSet<u32> = consensus.kept.iter().map(|c| c.query).collect();
+        remaining.retain(|c| !kept.contains(&c.query));
+        let m = match binpick_pcl::estimate_svd(
+            &model.initial_keypoints,
+            cluster_kp,
+            &consensus.kept,
+        ) {
+            Ok(m) => m,
+            Err(binpick_pcl::Error::ImproperRotation { .. }) => continue,
+            Err(e) => {
+                return Err(Error::Pcl {
+                    stage: "SVD",
+                    source: e,
+                });
+            }
+        };
+        let Some(pose) = from_mat4(&m) else { continue };
+        let score = euclidean_score(world, &model.initial_keypoints, &pose);
+        if best.as_ref().is_none_or(|b| score < b.score) {
+            best = Some(InitialAlignment {
+                pose,
+                score,
+                fpfh_radius_mm: None,
+                sac_threshold_mm: threshold_mm,
+                sac_inliers: consensus.kept.len(),
             });
         }
-    };
-    if consensus.kept.len() < 3 {
-        return Ok(None);
     }
-    let m = match binpick_pcl::estimate_svd(&model.initial_keypoints, cluster_kp, &consensus.kept) {
-        Ok(m) => m,
-        Err(binpick_pcl::Error::ImproperRotation { .. }) => return Ok(None),
-        Err(e) => {
-            return Err(Error::Pcl {
-                stage: "SVD",
-                source: e,
-            });
-        }
-    };
-    let Some(pose) = from_mat4(&m) else {
-        return Ok(None);
-    };
-    Ok(Some(InitialAlignment {
-        pose,
-        score: euclidean_score(world, &model.initial_keypoints, &pose),
-        fpfh_radius_mm: None,
-        sac_threshold_mm: threshold_mm,
-        sac_inliers: consensus.kept.len(),
-    }))
+    Ok(best)
 }
 
 /// The scene at the final leaf, uploaded once per recognition and shared by every ICP and

@@ -2,11 +2,14 @@
 //! recomputed it per cluster; 5.7 notes it "can be precomputed offline").
 
 use binpick_cloud::{Point, PointCloud};
+use binpick_pcl::{IcpParams, IndexedCloud};
+use nalgebra::{Isometry3, Matrix3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
 use crate::error::{Result, input, pcl};
 use crate::features::{RadiusFeatures, feature_surface, fpfh_for_radius, keypoints};
 use crate::params::Params;
+use crate::pose::{from_mat4, to_mat4};
 
 /// A model ready for matching. All coordinates in the model frame, mm.
 #[derive(Clone, Debug)]
@@ -21,6 +24,10 @@ pub struct PreparedModel {
     pub final_keypoints: Vec<Point>,
     /// Largest distance between two model points, mm.
     pub diameter_mm: f64,
+    /// Near-symmetries of the model (model frame -> model frame): half-turns about its
+    /// principal axes, each refined by ICP of the model onto itself. Empty when
+    /// `Params::symmetry_candidates` is off.
+    pub near_symmetries: Vec<Isometry3<f64>>,
 }
 
 /// Smallest model the pipeline can work with, in voxelised points.
@@ -82,16 +89,80 @@ impl PreparedModel {
             ));
         }
         let final_idx = keypoints(&cloud, params.final_leaf_mm)?;
-        let final_keypoints = final_idx.iter().map(|&i| cloud[i as usize]).collect();
+        let final_keypoints: Vec<Point> = final_idx.iter().map(|&i| cloud[i as usize]).collect();
         let diameter_mm = diameter(&initial_keypoints);
+        let near_symmetries = if params.symmetry_candidates && !params.thesis_strict {
+            near_symmetries(&cloud, &final_keypoints, diameter_mm, params)?
+        } else {
+            Vec::new()
+        };
         Ok(Self {
             cloud,
             initial_keypoints,
             features,
             final_keypoints,
             diameter_mm,
+            near_symmetries,
         })
     }
+}
+
+/// The half-turns about the model's principal axes (through its centroid), each refined by
+/// ICP of the model's final keypoints onto the model, keeping those that do not collapse to
+/// the identity. Bent sheets and pipes are often nearly symmetric under one of them, and the
+/// RANSAC consensus then lands on the flipped pose.
+fn near_symmetries(
+    cloud: &[Point],
+    final_kp: &[Point],
+    diameter_mm: f64,
+    params: &Params,
+) -> Result<Vec<Isometry3<f64>>> {
+    let pts: Vec<Vector3<f64>> = cloud
+        .iter()
+        .map(|p| Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2])))
+        .collect();
+    let n = pts.len() as f64;
+    let c = pts.iter().sum::<Vector3<f64>>() / n;
+    let cov = pts.iter().fold(Matrix3::zeros(), |acc, p| {
+        acc + (p - c) * (p - c).transpose()
+    }) / n;
+    let axes = cov.symmetric_eigen().eigenvectors;
+    let target = IndexedCloud::new(cloud).map_err(pcl("model self-registration"))?;
+    let sample = crate::eval::scoring_points(final_kp, 500);
+    let mut found: Vec<Isometry3<f64>> = Vec::new();
+    for k in 0..3 {
+        let axis = Unit::new_normalize(axes.column(k).into_owned());
+        let turn = Translation3::from(c)
+            * UnitQuaternion::from_axis_angle(&axis, std::f64::consts::PI)
+            * Translation3::from(-c);
+        let refined = target
+            .icp(
+                final_kp,
+                &IcpParams {
+                    initial: to_mat4(&turn),
+                    max_correspondence_distance: params.icp_max_correspondence_mm,
+                    max_iterations: params.icp_iterations,
+                    transformation_epsilon: params.icp_transformation_epsilon,
+                    batch_correspondences: true,
+                },
+            )
+            .ok()
+            .and_then(|o| from_mat4(&o.transform))
+            .unwrap_or(turn);
+        // Keep it unless ICP slid back to the identity or to one already found.
+        let distinct = |a: &Isometry3<f64>| {
+            let d = sample
+                .iter()
+                .map(|p: &Point3<f64>| (a * p - refined * p).norm())
+                .sum::<f64>()
+                / sample.len().max(1) as f64;
+            d > 0.1 * diameter_mm
+        };
+        if distinct(&Isometry3::identity()) && found.iter().all(distinct) {
+            found.push(refined);
+        }
+    }
+    Ok(found)
 }
 
 /// Largest pairwise distance (exact, O(n^2) over the keypoints; a few thousand at most).

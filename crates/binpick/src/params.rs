@@ -135,6 +135,16 @@ pub struct Params {
     pub sac_thresholds_mm: Vec<f64>,
     /// RANSAC iterations per threshold (3.4.2.5). Default 50, range 1-100000.
     pub sac_iterations: u32,
+    /// Consensus sets tried per threshold: 1 is the thesis (RANSAC's largest consensus only);
+    /// 2 also runs RANSAC on the correspondences the first set left out, so the true pose of a
+    /// nearly symmetric part is scored even when its flipped pose gathers more matches.
+    /// Default 2, range 1-10 (thesis_strict uses 1).
+    pub consensus_modes: u32,
+    /// Also score each cluster's best initial hypotheses composed with the model's
+    /// near-symmetries (half-turns about its principal axes, refined on the model itself), so
+    /// a nearly symmetric part matched flipped is corrected by the Euclidean score. Not in the
+    /// thesis; off in thesis_strict mode. Default true.
+    pub symmetry_candidates: bool,
     /// Keep an initial alignment only if its Euclidean score (mean squared distance, mm^2,
     /// 3.1.1) is below this (4.3 #9). Default 100, range > 0.
     pub initial_score_max: f64,
@@ -197,6 +207,8 @@ impl Default for Params {
             feature_surface: FeatureSurface::Keypoints,
             sac_thresholds_mm: (1..=20).map(f64::from).collect(),
             sac_iterations: 50,
+            consensus_modes: 2,
+            symmetry_candidates: true,
             initial_score_max: 100.0,
             final_leaf_mm: 2.0,
             icp_iterations: 50,

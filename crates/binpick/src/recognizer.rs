@@ -118,6 +118,12 @@ impl std::fmt::Debug for Recognizer {
     }
 }
 
+/// A group larger than the model that yields no part is split again at this fraction of its
+/// clustering tolerance, but not below `MIN_TOLERANCE_FACTOR` x resolution (thesis 3.4.1.3:
+/// slightly above the resolution keeps single parts whole).
+const TIGHTER_TOLERANCE: f64 = 0.75;
+const MIN_TOLERANCE_FACTOR: f64 = 1.1;
+
 /// Extents outside these bounds mean the cloud is not in millimetres.
 const MIN_EXTENT_RESOLUTIONS: f64 = 10.0;
 const MAX_EXTENT_MM: f64 = 100_000.0;
@@ -317,7 +323,9 @@ impl Recognizer {
 
     /// Searches one cluster: initial then final alignment; outside thesis-strict mode, after
     /// each accepted part the points it explains are removed and the rest searched again, so
-    /// touching parts merged into one cluster are all found.
+    /// touching parts merged into one cluster are all found; and a group larger than one part
+    /// that yields nothing is split at a tighter tolerance (parts resting on each other often
+    /// touch along an edge only).
     fn search_cluster(
         &self,
         index: usize,
@@ -338,73 +346,48 @@ impl Recognizer {
             initial_ms: 0.0,
             final_ms: 0.0,
         };
-        let mut queue = VecDeque::from([points]);
+        // (points, clustering tolerance in mm) still to search.
+        let mut queue = VecDeque::from([(points, p.cluster_tolerance_mm())]);
         let mut last_reason = String::from("no candidate");
         // Each accepted part removes at least half a minimum cluster, so this bounds the loop.
         let max_rounds = 1 + out.report.points / (min_size as usize / 2).max(1);
-        while let Some(part) = queue.pop_front() {
+        while let Some((part, tol)) = queue.pop_front() {
             if out.detections.len() >= max_rounds {
                 last_reason = "round limit reached".into();
                 break;
             }
             deadline.check("cluster alignment")?;
-            let t = Instant::now();
-            let initial = initial_alignment(&self.model, &part, p, deadline)?;
-            out.initial_ms += ms(t.elapsed());
-            let Some(initial) = initial else {
-                last_reason = "no RANSAC consensus".into();
-                continue;
-            };
-            if initial.score >= p.initial_score_max {
-                last_reason = format!(
-                    "initial score {:.1} >= {}",
-                    initial.score, p.initial_score_max
-                );
-                continue;
-            }
-            deadline.check("final alignment")?;
-            let t = Instant::now();
-            let fin = final_alignment(&self.model, world, &initial.pose, p);
-            out.final_ms += ms(t.elapsed());
-            if fin.score >= p.final_score_max_pct {
-                last_reason = format!(
-                    "final score {:.1} % >= {} %",
-                    fin.score, p.final_score_max_pct
-                );
-                continue;
-            }
-            let up = Vector3::from(p.up).normalize();
-            let c = centroid(&self.model.final_keypoints);
-            let height_mm = (fin.pose * c).coords.dot(&up);
-            out.detections.push(Detection {
-                rank: 0,
-                pose: fin.pose,
-                initial_pose: initial.pose,
-                initial_score: initial.score,
-                final_score: fin.score,
-                score_before_icp: fin.score_before_icp,
-                cluster: index,
-                cluster_round: out.detections.len(),
-                fpfh_radius_mm: initial.fpfh_radius_mm,
-                sac_threshold_mm: initial.sac_threshold_mm,
-                sac_inliers: initial.sac_inliers,
-                icp: fin.icp,
-                height_mm,
-                rank_reason: String::new(),
-            });
-            last_reason = "accepted".into();
-            if p.thesis_strict {
-                break;
-            }
-            let rest = self.unexplained(&part, &fin.pose)?;
-            if part.len() - rest.len() < (min_size as usize / 2).max(1) {
-                last_reason =
-                    "accepted part explains too few cluster points to search further".into();
-                continue;
-            }
-            if rest.len() >= min_size as usize {
-                for sub in self.recluster(&rest, min_size)? {
-                    queue.push_back(sub);
+            match self.search_part(index, &part, world, deadline, &mut out)? {
+                Ok(pose) => {
+                    last_reason = "accepted".into();
+                    if p.thesis_strict {
+                        break;
+                    }
+                    let rest = self.unexplained(&part, &pose)?;
+                    if part.len() - rest.len() < (min_size as usize / 2).max(1) {
+                        last_reason =
+                            "accepted part explains too few cluster points to search further"
+                                .into();
+                        continue;
+                    }
+                    if rest.len() >= min_size as usize {
+                        queue.extend(
+                            self.recluster(&rest, min_size, tol)?
+                                .into_iter()
+                                .map(|s| (s, tol)),
+                        );
+                    }
+                }
+                Err(reason) => {
+                    last_reason = reason;
+                    let tighter =
+                        (tol * TIGHTER_TOLERANCE).max(MIN_TOLERANCE_FACTOR * p.resolution_mm);
+                    if !p.thesis_strict && part.len() > self.model.cloud.len() && tighter < tol {
+                        let subs = self.recluster(&part, min_size, tighter)?;
+                        if subs.len() > 1 {
+                            queue.extend(subs.into_iter().map(|s| (s, tighter)));
+                        }
+                    }
                 }
             }
         }
@@ -414,6 +397,61 @@ impl Recognizer {
             n => format!("{n} detection(s); then {last_reason}"),
         };
         Ok(out)
+    }
+
+    /// Initial then final alignment of one group of points. `Ok(Ok(pose))` when a part is
+    /// accepted (and pushed to `out`), `Ok(Err(reason))` when the group yields none.
+    fn search_part(
+        &self,
+        index: usize,
+        part: &[Point],
+        world: &FinalWorld,
+        deadline: &Deadline,
+        out: &mut ClusterOutcome,
+    ) -> Result<std::result::Result<Isometry3<f64>, String>> {
+        let p = &self.params;
+        let t = Instant::now();
+        let initial = initial_alignment(&self.model, part, p, deadline)?;
+        out.initial_ms += ms(t.elapsed());
+        let Some(initial) = initial else {
+            return Ok(Err("no RANSAC consensus".into()));
+        };
+        if initial.score >= p.initial_score_max {
+            return Ok(Err(format!(
+                "initial score {:.1} >= {}",
+                initial.score, p.initial_score_max
+            )));
+        }
+        deadline.check("final alignment")?;
+        let t = Instant::now();
+        let fin = final_alignment(&self.model, world, &initial.pose, p);
+        out.final_ms += ms(t.elapsed());
+        if fin.score >= p.final_score_max_pct {
+            return Ok(Err(format!(
+                "final score {:.1} % >= {} %",
+                fin.score, p.final_score_max_pct
+            )));
+        }
+        let up = Vector3::from(p.up).normalize();
+        let c = centroid(&self.model.final_keypoints);
+        let height_mm = (fin.pose * c).coords.dot(&up);
+        out.detections.push(Detection {
+            rank: 0,
+            pose: fin.pose,
+            initial_pose: initial.pose,
+            initial_score: initial.score,
+            final_score: fin.score,
+            score_before_icp: fin.score_before_icp,
+            cluster: index,
+            cluster_round: out.detections.len(),
+            fpfh_radius_mm: initial.fpfh_radius_mm,
+            sac_threshold_mm: initial.sac_threshold_mm,
+            sac_inliers: initial.sac_inliers,
+            icp: fin.icp,
+            height_mm,
+            rank_reason: String::new(),
+        });
+        Ok(Ok(fin.pose))
     }
 
     /// Cluster points farther than the outlier distance from the placed model.
@@ -433,14 +471,15 @@ impl Recognizer {
             .collect())
     }
 
-    fn recluster(&self, points: &[Point], min_size: u32) -> Result<Vec<Vec<Point>>> {
+    fn recluster(
+        &self,
+        points: &[Point],
+        min_size: u32,
+        tolerance_mm: f64,
+    ) -> Result<Vec<Vec<Point>>> {
         let cloud = IndexedCloud::new(points).map_err(pcl("re-clustering"))?;
         let groups = cloud
-            .euclidean_clusters(
-                self.params.cluster_tolerance_mm() as f32,
-                min_size,
-                u32::MAX,
-            )
+            .euclidean_clusters(tolerance_mm as f32, min_size, u32::MAX)
             .map_err(pcl("re-clustering"))?;
         Ok(groups
             .into_iter()
