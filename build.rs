@@ -26,10 +26,18 @@ const SOURCES: &[&str] = &[
 
 const HEADERS: &[&str] = &["cpp/include/binpick_pcl.h", "cpp/include/internal.h"];
 
+/// The reference pipeline (thesis Algorithms 1 and 2 written directly against PCL, one call per
+/// scene). Compiled as its own library because only it is built with OpenMP (`-fopenmp`, for
+/// its `#pragma omp parallel for` over clusters, thesis 4.4).
+const REFERENCE_SOURCES: &[&str] = &["cpp/reference/pipeline.cpp"];
+
 fn main() {
     println!("cargo:rerun-if-changed=build.rs");
     println!("cargo:rerun-if-changed=src/ffi.rs");
     for f in SOURCES.iter().chain(HEADERS) {
+        println!("cargo:rerun-if-changed={f}");
+    }
+    for f in REFERENCE_SOURCES {
         println!("cargo:rerun-if-changed={f}");
     }
     println!("cargo:rerun-if-env-changed=PKG_CONFIG_PATH");
@@ -72,4 +80,21 @@ fn main() {
         build.flag(format!("-isystem{}", dir.display()));
     }
     build.compile("binpick_pcl_bridge");
+
+    // No bridge of its own (the functions are declared in src/ffi.rs): this only sets up the
+    // include paths of the generated header.
+    let mut reference = cxx_build::bridges(std::iter::empty::<&str>());
+    reference
+        .files(REFERENCE_SOURCES)
+        .include(Path::new("cpp/include"))
+        .std("c++17")
+        .flag("-Wall")
+        .flag("-fopenmp")
+        .flag_if_supported("-Wno-deprecated-declarations")
+        .flag_if_supported("-Wno-use-after-free");
+    for dir in &include_dirs {
+        reference.flag(format!("-isystem{}", dir.display()));
+    }
+    reference.compile("binpick_pcl_reference");
+    println!("cargo:rustc-link-lib=gomp");
 }

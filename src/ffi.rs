@@ -61,6 +61,130 @@ pub(crate) mod bridge {
         valid: Vec<bool>,
     }
 
+    // --- Reference pipeline (cpp/reference/): thesis Algorithms 1 and 2 written directly in
+    // C++ against PCL, one call per scene. Lengths in the cloud's units (binpick: mm).
+
+    /// Parameters of the reference pipeline (binpick's `Params`, flattened).
+    #[derive(Clone, Debug)]
+    struct ReferenceParams {
+        /// 1 = separated FPFH (thesis 4.1), 2 = merged FPFH (4.2).
+        algorithm: u8,
+        resolution: f64,
+        roi_enabled: bool,
+        roi_min: [f64; 3],
+        roi_max: [f64; 3],
+        support_enabled: bool,
+        support_distance: f64,
+        support_max_planes: u32,
+        support_min_points_factor: f64,
+        support_ransac_iterations: u32,
+        cluster_tolerance_factor: f64,
+        cluster_min_factor: f64,
+        cluster_max_factor: f64,
+        initial_leaf: f64,
+        fpfh_radii: Vec<f64>,
+        normal_radius_factor: f64,
+        /// FPFH search surface: false = the keypoints themselves, true = the full cloud.
+        feature_surface_cloud: bool,
+        sac_thresholds: Vec<f64>,
+        sac_iterations: u32,
+        initial_score_max: f64,
+        final_leaf: f64,
+        icp_iterations: u32,
+        icp_transformation_epsilon: f64,
+        icp_max_correspondence: f64,
+        outlier_distance: f64,
+        final_score_max: f64,
+        scene_viewpoint: [f64; 3],
+        model_viewpoint: [f64; 3],
+        /// Threads of the OpenMP loop over clusters (0 = OpenMP's default).
+        threads: u32,
+    }
+
+    /// One accepted detection of the reference pipeline.
+    #[derive(Clone, Debug)]
+    struct ReferenceDetection {
+        /// Row-major 4x4, model -> scene (final pose).
+        pose: [f64; 16],
+        initial_pose: [f64; 16],
+        initial_score: f64,
+        final_score: f64,
+        score_before_icp: f64,
+        cluster: u32,
+        /// Index into `fpfh_radii` of the winning radius; -1 for Algorithm 2.
+        fpfh_radius_index: i32,
+        sac_threshold: f64,
+        sac_inliers: u32,
+        icp_converged: bool,
+        icp_iterations: u32,
+        /// PCL's fitness score (may be non-finite or huge when ICP matched nothing).
+        icp_fitness: f64,
+        icp_adopted: bool,
+        /// 0 = ICP ran, 1 = PCL failed (`icp_error`), 2 = improper rotation (`icp_det`).
+        icp_error_kind: u8,
+        icp_error: String,
+        icp_det: f64,
+    }
+
+    /// What happened in one cluster.
+    #[derive(Clone, Debug)]
+    struct ReferenceCluster {
+        points: u32,
+        /// 0 = no RANSAC consensus, 1 = initial score too high, 2 = final score too high,
+        /// 3 = accepted.
+        outcome: u8,
+        /// The rejected score for outcomes 1 and 2.
+        score: f64,
+    }
+
+    #[derive(Clone, Debug)]
+    struct ReferencePlane {
+        coefficients: [f32; 4],
+        points: u32,
+    }
+
+    /// Wall-clock milliseconds. Per-cluster stages add up the work of all OpenMP threads.
+    #[derive(Clone, Debug)]
+    struct ReferenceTimings {
+        /// Up-front model checks (voxel grid, keypoints, FPFH validity, final keypoints).
+        model_preparation_ms: f64,
+        preprocess_ms: f64,
+        /// Euclidean clustering plus the scene's final keypoints.
+        clustering_ms: f64,
+        initial_alignment_ms: f64,
+        final_alignment_ms: f64,
+        /// The whole call.
+        total_ms: f64,
+        /// Stage breakdown inside the cluster loop (thesis 5.7 pie charts).
+        model_features_ms: f64,
+        cluster_keypoints_ms: f64,
+        cluster_fpfh_ms: f64,
+        correspondences_ms: f64,
+        rejection_ms: f64,
+        svd_ms: f64,
+        euclidean_score_ms: f64,
+        icp_ms: f64,
+        outlier_score_ms: f64,
+        /// OpenMP threads of the cluster loop and the runtime's max active levels.
+        omp_threads: u32,
+        omp_max_active_levels: i32,
+    }
+
+    #[derive(Clone, Debug)]
+    struct ReferenceResult {
+        /// In cluster order (not ranked).
+        detections: Vec<ReferenceDetection>,
+        clusters: Vec<ReferenceCluster>,
+        input_points: u64,
+        outside_roi: u64,
+        voxel_merged: u64,
+        support_planes: Vec<ReferencePlane>,
+        remaining: u64,
+        /// Flat xyz of the model's final keypoints (for the pick height).
+        model_final_keypoints: Vec<f32>,
+        timings: ReferenceTimings,
+    }
+
     unsafe extern "C++" {
         include!("binpick-pcl/cpp/include/binpick_pcl.h");
 
@@ -119,6 +243,12 @@ pub(crate) mod bridge {
             correspondences: &[Correspondence],
         ) -> Result<Transform>;
         fn icp_align(target: &Cloud, source_xyz: &[f32], params: &IcpParams) -> Result<IcpResult>;
+
+        fn reference_recognize(
+            model_xyz: &[f32],
+            scene_xyz: &[f32],
+            params: &ReferenceParams,
+        ) -> Result<ReferenceResult>;
     }
 }
 

@@ -28,6 +28,10 @@ use cxx::UniquePtr;
 use ffi::bridge;
 
 pub use bridge::Correspondence;
+pub use bridge::{
+    ReferenceCluster, ReferenceDetection, ReferenceParams, ReferencePlane, ReferenceResult,
+    ReferenceTimings,
+};
 
 /// One point `[x, y, z]`.
 pub type Point = [f32; 3];
@@ -424,4 +428,19 @@ impl IndexedCloud {
             stop: IcpStop::from_pcl(r.state),
         })
     }
+}
+
+/// The reference pipeline (`cpp/reference/`): thesis Algorithms 1 and 2 written directly in C++
+/// against PCL, the way the thesis describes them (model features recomputed per cluster, a
+/// kd-tree built by every stage and every score, an OpenMP loop over clusters), in one call:
+/// model and scene points plus parameters -> detections in cluster order, per-cluster
+/// outcomes, preprocessing counts and stage timings. Bad input is an [`Error::Pcl`].
+pub fn reference_recognize(
+    model: &[Point],
+    scene: &[Point],
+    params: &ReferenceParams,
+) -> Result<ReferenceResult> {
+    init();
+    bridge::reference_recognize(flat(model), flat(scene), params)
+        .map_err(pcl_err("reference pipeline"))
 }

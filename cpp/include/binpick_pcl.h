@@ -22,6 +22,8 @@ struct PlaneFit;
 struct Clusters;
 struct Features;
 struct Transform;
+struct ReferenceParams;
+struct ReferenceResult;
 
 // A cloud uploaded once and reused by many calls: owns the pcl::PointCloud<PointXYZ> and its
 // kd-tree (pcl::search::KdTree, FLANN). Immutable after construction, so it can be shared by
@@ -74,5 +76,10 @@ Transform estimate_svd(rust::Slice<const float> source_xyz, rust::Slice<const fl
                        rust::Slice<const Correspondence> correspondences);
 IcpResult icp_align(const Cloud& target, rust::Slice<const float> source_xyz,
                     const IcpParams& params);
+
+// --- reference/pipeline.cpp (OpenMP; thesis Algorithms 1 and 2 in one call) ---------------
+ReferenceResult reference_recognize(rust::Slice<const float> model_xyz,
+                                    rust::Slice<const float> scene_xyz,
+                                    const ReferenceParams& params);
 
 }  // namespace binpick

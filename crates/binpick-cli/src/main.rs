@@ -11,6 +11,7 @@ mod plots;
 mod progress;
 mod recognize;
 mod replay;
+mod show;
 mod synth;
 mod table;
 
@@ -41,6 +42,8 @@ enum Command {
     Bench(bench::Args),
     /// Generate a thesis-like dataset with ground truth (physics piles, simulated scanner).
     Synth(synth::Args),
+    /// Render a saved result JSON as PNG (and optionally a labelled PLY).
+    Show(show::Args),
 }
 
 fn main() -> ExitCode {
@@ -51,6 +54,7 @@ fn main() -> ExitCode {
         Command::Replay(a) => replay::run(a),
         Command::Bench(a) => bench::run(a),
         Command::Synth(a) => synth::run(a),
+        Command::Show(a) => show::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -21,6 +21,14 @@ pub struct Args {
     /// Write the result as JSON (schema in README); the parameters go next to it as .params.toml.
     #[arg(long, value_name = "out.json")]
     pub json: Option<PathBuf>,
+    /// Render the result as PNG: scanner view and oblique view, detections in their poses,
+    /// labelled with their rank.
+    #[arg(long, value_name = "out.png")]
+    pub png: Option<PathBuf>,
+    /// Write a PLY: the scene coloured by which detection explains each point, plus the
+    /// placed models (for CloudCompare or MeshLab).
+    #[arg(long, value_name = "out.ply")]
+    pub ply: Option<PathBuf>,
     /// Print only the JSON-equivalent table, no per-cluster report.
     #[arg(long, short)]
     pub quiet: bool,
@@ -51,17 +59,52 @@ pub fn run(a: Args) -> Result<()> {
         }
     }
     print_ranked(&result);
+    let mut report = RecognitionReport::new(
+        &a.scene.display().to_string(),
+        &a.model.display().to_string(),
+        "rust",
+        &params,
+        &result,
+    );
+    report.model_units = a.params.model_units(&params);
     if let Some(out) = &a.json {
-        let report = RecognitionReport::new(
-            &a.scene.display().to_string(),
-            &a.model.display().to_string(),
-            "rust",
-            &params,
-            &result,
-        );
         write_json(out, &report)?;
         let p = write_params_next_to(out, &params)?;
         log(&format!("wrote {} and {}", out.display(), p.display()));
+    }
+    write_pictures(&report, &scene, &model, a.png.as_deref(), a.ply.as_deref())
+}
+
+/// PNG and PLY outputs of one result.
+pub fn write_pictures(
+    report: &RecognitionReport,
+    scene: &binpick::PointCloud,
+    model: &binpick::PointCloud,
+    png: Option<&std::path::Path>,
+    ply: Option<&std::path::Path>,
+) -> Result<()> {
+    if let Some(png) = png {
+        let title = format!(
+            "{} in {} (algorithm {})",
+            report.model, report.scene, report.algorithm
+        );
+        crate::plots::render(
+            scene,
+            model,
+            &report.detections,
+            report.params.up,
+            title,
+            png,
+        )?;
+    }
+    if let Some(ply) = ply {
+        crate::plots::labelled_ply(
+            scene,
+            model,
+            &report.detections,
+            report.params.outlier_distance_mm,
+            ply,
+        )?;
     }
     Ok(())
 }

@@ -26,7 +26,6 @@ fn main() -> ExitCode {
         ..Params::default()
     };
     let recognizer = match load_cloud(model_path, Units::Millimetres)
-        .map_err(binpick::Error::from)
         .and_then(|(model, _)| Recognizer::new(&model, params))
     {
         Ok(r) => r,
@@ -38,11 +37,9 @@ fn main() -> ExitCode {
 
     for scan in scans {
         // One cycle per scan. Nothing in here can panic or abort the controller.
-        let cycle = load_cloud(scan, Units::Millimetres)
-            .map_err(binpick::Error::from)
-            .and_then(|(cloud, _)| {
-                recognizer.recognize_within(&cloud, Some(Duration::from_secs(5)))
-            });
+        let cycle = load_cloud(scan, Units::Millimetres).and_then(|(cloud, _)| {
+            recognizer.recognize_within(&cloud, Some(Duration::from_secs(5)))
+        });
         match cycle {
             Ok(result) => match result.detections.first() {
                 Some(best) => {

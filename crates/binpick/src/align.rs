@@ -247,7 +247,11 @@ fn hypothesis(
 ) -> Result<Option<InitialAlignment>> {
     let mut remaining = corrs.to_vec();
     let mut best: Option<InitialAlignment> = None;
-    let modes = if params.thesis_strict { 1 } else { params.consensus_modes.max(1) };
+    let modes = if params.thesis_strict {
+        1
+    } else {
+        params.consensus_modes.max(1)
+    };
     for _ in 0..modes {
         if remaining.len() < 3 {
             break;

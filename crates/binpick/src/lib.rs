@@ -30,6 +30,7 @@ pub mod params;
 pub mod pose;
 pub mod rank;
 pub mod recognizer;
+pub mod reference;
 pub mod report;
 pub mod scene;
 pub mod validate;

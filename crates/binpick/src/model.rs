@@ -24,6 +24,8 @@ pub struct PreparedModel {
     pub final_keypoints: Vec<Point>,
     /// Largest distance between two model points, mm.
     pub diameter_mm: f64,
+    /// Largest distance from the model's centroid to its points, mm (thesis 3.4.1.2).
+    pub radius_mm: f64,
     /// Near-symmetries of the model (model frame -> model frame): half-turns about its
     /// principal axes, each refined by ICP of the model onto itself. Empty when
     /// `Params::symmetry_candidates` is off.
@@ -91,6 +93,7 @@ impl PreparedModel {
         let final_idx = keypoints(&cloud, params.final_leaf_mm)?;
         let final_keypoints: Vec<Point> = final_idx.iter().map(|&i| cloud[i as usize]).collect();
         let diameter_mm = diameter(&initial_keypoints);
+        let radius_mm = radius(&cloud);
         let near_symmetries = if params.symmetry_candidates && !params.thesis_strict {
             near_symmetries(&cloud, &final_keypoints, diameter_mm, params)?
         } else {
@@ -102,6 +105,7 @@ impl PreparedModel {
             features,
             final_keypoints,
             diameter_mm,
+            radius_mm,
             near_symmetries,
         })
     }
@@ -163,6 +167,26 @@ fn near_symmetries(
         }
     }
     Ok(found)
+}
+
+/// Largest distance from the centroid to a point.
+pub fn radius(points: &[Point]) -> f64 {
+    let n = points.len().max(1) as f64;
+    let mut c = [0.0f64; 3];
+    for p in points {
+        for k in 0..3 {
+            c[k] += f64::from(p[k]) / n;
+        }
+    }
+    points
+        .iter()
+        .map(|p| {
+            (0..3)
+                .map(|k| (f64::from(p[k]) - c[k]).powi(2))
+                .sum::<f64>()
+                .sqrt()
+        })
+        .fold(0.0, f64::max)
 }
 
 /// Largest pairwise distance (exact, O(n^2) over the keypoints; a few thousand at most).

@@ -145,6 +145,11 @@ pub struct Params {
     /// a nearly symmetric part matched flipped is corrected by the Euclidean score. Not in the
     /// thesis; off in thesis_strict mode. Default true.
     pub symmetry_candidates: bool,
+    /// A cluster with more points than this multiple of the model is searched in overlapping
+    /// spheres of 1.5 model radii (thesis 3.4.1.2) instead of whole: in a pile, whole-cluster
+    /// correspondences are spread over many parts. Not in the thesis's final algorithm; off in
+    /// thesis_strict mode. Default 1.5, range >= 1.
+    pub sphere_split_factor: f64,
     /// Keep an initial alignment only if its Euclidean score (mean squared distance, mm^2,
     /// 3.1.1) is below this (4.3 #9). Default 100, range > 0.
     pub initial_score_max: f64,
@@ -209,6 +214,7 @@ impl Default for Params {
             sac_iterations: 50,
             consensus_modes: 2,
             symmetry_candidates: true,
+            sphere_split_factor: 1.5,
             initial_score_max: 100.0,
             final_leaf_mm: 2.0,
             icp_iterations: 50,

@@ -69,6 +69,9 @@ pub struct ClusterReport {
     pub index: usize,
     pub points: usize,
     pub detections: usize,
+    /// Spheres the cluster was searched in (1 when searched whole).
+    #[serde(default)]
+    pub regions: usize,
     /// Why the search in this cluster stopped.
     pub outcome: String,
 }
@@ -123,6 +126,9 @@ impl std::fmt::Debug for Recognizer {
 /// slightly above the resolution keeps single parts whole).
 const TIGHTER_TOLERANCE: f64 = 0.75;
 const MIN_TOLERANCE_FACTOR: f64 = 1.1;
+
+/// Search spheres reach this many model radii from their centre.
+const SPHERE_RADIUS_FACTOR: f64 = 1.5;
 
 /// Extents outside these bounds mean the cloud is not in millimetres.
 const MIN_EXTENT_RESOLUTIONS: f64 = 10.0;
@@ -340,14 +346,28 @@ impl Recognizer {
                 index,
                 points: points.len(),
                 detections: 0,
+                regions: 1,
                 outcome: String::new(),
             },
             detections: Vec::new(),
             initial_ms: 0.0,
             final_ms: 0.0,
         };
-        // (points, clustering tolerance in mm) still to search.
-        let mut queue = VecDeque::from([(points, p.cluster_tolerance_mm())]);
+        // (points, clustering tolerance in mm) still to search. A cluster too big for one part
+        // (a pile) is searched in overlapping spheres around it (thesis 3.4.1.2), so each
+        // search sees only a few parts' features; duplicates are suppressed at the end.
+        let regions = if !p.thesis_strict
+            && points.len() as f64 > p.sphere_split_factor * self.model.cloud.len() as f64
+        {
+            self.spheres(&points)?
+        } else {
+            vec![points]
+        };
+        out.report.regions = regions.len();
+        let mut queue: VecDeque<(Vec<Point>, f64)> = regions
+            .into_iter()
+            .map(|r| (r, p.cluster_tolerance_mm()))
+            .collect();
         let mut last_reason = String::from("no candidate");
         // Each accepted part removes at least half a minimum cluster, so this bounds the loop.
         let max_rounds = 1 + out.report.points / (min_size as usize / 2).max(1);
@@ -452,6 +472,28 @@ impl Recognizer {
             rank_reason: String::new(),
         });
         Ok(Ok(fin.pose))
+    }
+
+    /// Overlapping spheres covering a big cluster (thesis 3.4.1.2): centres are uniform
+    /// keypoints of the cluster at a leaf of one model radius (centroid to farthest point),
+    /// each sphere keeps the cluster points within 1.5 model radii. Spheres with fewer points
+    /// than the smallest cluster are dropped.
+    fn spheres(&self, points: &[Point]) -> Result<Vec<Vec<Point>>> {
+        let radius = self.model.radius_mm;
+        let (min_size, _) = self.cluster_size_range();
+        let centres =
+            binpick_pcl::uniform_sampling(points, radius as f32).map_err(pcl("sphere centres"))?;
+        let index = NearestIndex::new(points).map_err(|e| input("cluster", e.to_string()))?;
+        let mut out = Vec::new();
+        for c in centres {
+            let mut members =
+                index.within(&points[c as usize], (SPHERE_RADIUS_FACTOR * radius) as f32);
+            members.sort_unstable();
+            if members.len() >= min_size as usize {
+                out.push(members.into_iter().map(|i| points[i]).collect());
+            }
+        }
+        Ok(out)
     }
 
     /// Cluster points farther than the outlier distance from the placed model.

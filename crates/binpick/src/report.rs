@@ -81,6 +81,10 @@ pub struct RecognitionReport {
     pub model: String,
     /// Always "mm": poses, scores and timings refer to millimetre clouds.
     pub units: String,
+    /// Units of the model file (the scene's are `params.units`); lets `binpick show` reload
+    /// both clouds.
+    #[serde(default)]
+    pub model_units: binpick_cloud::Units,
     pub algorithm: u8,
     /// "rust" (this library) or "reference" (the plain C++ PCL pipeline).
     pub engine: String,
@@ -98,6 +102,7 @@ impl RecognitionReport {
             scene: scene.to_owned(),
             model: model.to_owned(),
             units: "mm".to_owned(),
+            model_units: params.units,
             algorithm: params.algorithm.number(),
             engine: engine.to_owned(),
             params: params.clone(),

@@ -1,0 +1,341 @@
+//! The reference engine: thesis Algorithms 1 and 2 written directly in C++ against PCL
+//! (`cpp/reference/pipeline.cpp`), reached through the bridge in one call per scene.
+//!
+//! It answers what [`Recognizer`](crate::Recognizer) answers with `thesis_strict = true`
+//! (same PCL stages, settings, point orders and tie-breaks; `tests/parity.rs` checks it), but
+//! is organised the way the thesis describes it rather than the way binpick is:
+//!
+//! | step                         | binpick (`Recognizer`)                 | reference (this module)                    |
+//! |------------------------------|----------------------------------------|--------------------------------------------|
+//! | model keypoints + FPFH       | once per model (`Recognizer::new`)     | again in every cluster (Alg. 1 step 1a-b)  |
+//! | kd-trees                     | scene uploaded once, trees shared      | built by every PCL stage and every score   |
+//! | validation scores            | kiddo kd-tree in Rust                  | `pcl::KdTreeFLANN` per call (3.1.1.3)      |
+//! | ICP correspondences          | one batched FLANN query per iteration  | PCL's default (one query per point)        |
+//! | parallelism                  | rayon over clusters, radii, thresholds | OpenMP `parallel for` over clusters (4.4)  |
+//!
+//! It always runs the thesis exactly (one detection per cluster, no duplicate suppression):
+//! `thesis_strict`, `consensus_modes`, `symmetry_candidates` and `duplicate_overlap` are not
+//! consulted. `time_budget_ms` is checked once the call returns (the C++ loop cannot be
+//! interrupted). `threads` sets the OpenMP team of the cluster loop (0 = OpenMP's default);
+//! PCL's OpenMP estimators inside it keep their default thread count.
+
+use std::time::Instant;
+
+use nalgebra::{Point3, Vector3};
+use serde::{Deserialize, Serialize};
+
+use binpick_cloud::{Point, PointCloud};
+use binpick_pcl::{ReferenceParams, ReferenceResult};
+
+use crate::align::IcpReport;
+use crate::error::{Error, Result, input, pcl};
+use crate::params::{Algorithm, FeatureSurface, Params};
+use crate::pose::from_mat4;
+use crate::rank::rank_detections;
+use crate::recognizer::{ClusterReport, Detection, Recognition, Timings};
+use crate::scene::{PreprocessReport, RemovedPlane};
+
+/// Extents outside these bounds mean the cloud is not in millimetres (as `Recognizer`).
+const MIN_EXTENT_RESOLUTIONS: f64 = 10.0;
+const MAX_EXTENT_MM: f64 = 100_000.0;
+
+/// Where the reference spent its time, ms. Stages inside the cluster loop add up the work of
+/// all OpenMP threads (the thesis's pie charts, 5.7).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ReferenceStages {
+    /// The model's keypoints and FPFH, recomputed in every cluster.
+    pub model_features_ms: f64,
+    pub cluster_keypoints_ms: f64,
+    pub cluster_fpfh_ms: f64,
+    /// FPFH matching (and Algorithm 2's merge).
+    pub correspondences_ms: f64,
+    /// RANSAC correspondence rejection.
+    pub rejection_ms: f64,
+    pub svd_ms: f64,
+    /// Euclidean validation scores of the threshold sweep (a kd-tree each).
+    pub euclidean_score_ms: f64,
+    pub icp_ms: f64,
+    /// Percent-of-outliers scores (and the Euclidean tie-break) of the final alignment.
+    pub outlier_score_ms: f64,
+    /// OpenMP threads that ran the cluster loop.
+    pub omp_threads: u32,
+    /// The OpenMP runtime's max active levels: 1 means PCL's OpenMP estimators inside the
+    /// cluster loop run on one thread each (nested regions are serialised).
+    pub omp_max_active_levels: i32,
+}
+
+/// A reference run: the same [`Recognition`] as `Recognizer::recognize` plus the stage
+/// breakdown.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ReferenceRun {
+    pub recognition: Recognition,
+    pub stages: ReferenceStages,
+}
+
+/// Recognises every instance of `model` in `scene` (both millimetres) with the reference
+/// C++ pipeline; detections ranked by [`rank_detections`] like `Recognizer::recognize`.
+/// `timings.model_preparation_ms` is the reference's up-front model check; `total_ms` is the
+/// whole call, model work included (the thesis has no separate preparation).
+pub fn recognize_reference(
+    model: &PointCloud,
+    scene: &PointCloud,
+    params: &Params,
+) -> Result<Recognition> {
+    recognize_reference_detailed(model, scene, params).map(|r| r.recognition)
+}
+
+/// [`recognize_reference`] plus the per-stage timings.
+pub fn recognize_reference_detailed(
+    model: &PointCloud,
+    scene: &PointCloud,
+    params: &Params,
+) -> Result<ReferenceRun> {
+    let start = Instant::now();
+    params.validate()?;
+    check_extent("model", model, params)?;
+    check_extent("scene", scene, params)?;
+    let raw =
+        binpick_pcl::reference_recognize(&model.points, &scene.points, &reference_params(params))
+            .map_err(pcl("reference pipeline"))?;
+    let mut run = convert(raw, params)?;
+    let t = Instant::now();
+    rank_detections(&mut run.recognition.detections, params.rank_score_band_pct);
+    run.recognition.timings.ranking_ms = ms(t.elapsed());
+    let elapsed = start.elapsed();
+    run.recognition.timings.total_ms = ms(elapsed);
+    if let Some(budget) = params.time_budget_ms {
+        if elapsed.as_millis() > u128::from(budget) {
+            return Err(Error::TimeBudget {
+                budget_ms: budget,
+                elapsed_ms: u64::try_from(elapsed.as_millis()).unwrap_or(u64::MAX),
+                stage: "reference pipeline",
+            });
+        }
+    }
+    Ok(run)
+}
+
+/// `params` as the bridge's flat struct.
+pub fn reference_params(p: &Params) -> ReferenceParams {
+    let roi = p.region_of_interest;
+    ReferenceParams {
+        algorithm: p.algorithm.number(),
+        resolution: p.resolution_mm,
+        roi_enabled: roi.is_some(),
+        roi_min: roi.map_or([0.0; 3], |r| r.min_mm),
+        roi_max: roi.map_or([0.0; 3], |r| r.max_mm),
+        support_enabled: p.support.enabled,
+        support_distance: p.support.distance_mm,
+        support_max_planes: p.support.max_planes,
+        support_min_points_factor: p.support.min_points_factor,
+        support_ransac_iterations: p.support.ransac_iterations,
+        cluster_tolerance_factor: p.cluster_tolerance_factor,
+        cluster_min_factor: p.cluster_min_factor,
+        cluster_max_factor: p.cluster_max_factor,
+        initial_leaf: p.initial_leaf_mm,
+        fpfh_radii: p.fpfh_radii_mm.clone(),
+        normal_radius_factor: p.normal_radius_factor,
+        feature_surface_cloud: p.feature_surface == FeatureSurface::Cloud,
+        sac_thresholds: p.sac_thresholds_mm.clone(),
+        sac_iterations: p.sac_iterations,
+        initial_score_max: p.initial_score_max,
+        final_leaf: p.final_leaf_mm,
+        icp_iterations: p.icp_iterations,
+        icp_transformation_epsilon: p.icp_transformation_epsilon,
+        icp_max_correspondence: p.icp_max_correspondence_mm,
+        outlier_distance: p.outlier_distance_mm,
+        final_score_max: p.final_score_max_pct,
+        scene_viewpoint: p.scene_viewpoint_mm,
+        model_viewpoint: p.model_viewpoint_mm,
+        threads: u32::try_from(p.threads).unwrap_or(u32::MAX),
+    }
+}
+
+fn ms(d: std::time::Duration) -> f64 {
+    d.as_secs_f64() * 1000.0
+}
+
+/// The unit checks of `Recognizer::new` / `recognize`, with the same messages.
+fn check_extent(what: &'static str, cloud: &PointCloud, params: &Params) -> Result<()> {
+    if cloud.is_empty() {
+        return Err(input(what, "the cloud is empty"));
+    }
+    if let Some(i) = cloud.first_non_finite() {
+        return Err(input(
+            what,
+            format!("point {i} has a non-finite coordinate"),
+        ));
+    }
+    let extent = cloud
+        .bounds()
+        .map(|b| f64::from(b.diagonal()))
+        .unwrap_or(0.0);
+    let min = MIN_EXTENT_RESOLUTIONS * params.resolution_mm;
+    if extent < min {
+        return Err(input(
+            what,
+            format!(
+                "its extent is {extent:.4} mm, smaller than {MIN_EXTENT_RESOLUTIONS} x the {} mm resolution: \
+                 the cloud looks like it is in metres (binpick works in millimetres; use --units m or units = \"m\")",
+                params.resolution_mm
+            ),
+        ));
+    }
+    if extent > MAX_EXTENT_MM {
+        return Err(input(
+            what,
+            format!(
+                "its extent is {extent:.0} mm (> {} m): wrong units? binpick expects millimetres",
+                MAX_EXTENT_MM / 1000.0
+            ),
+        ));
+    }
+    Ok(())
+}
+
+fn centroid(points: &[Point]) -> Point3<f64> {
+    let mut s = Vector3::zeros();
+    for p in points {
+        s += Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+    }
+    Point3::from(s / points.len().max(1) as f64)
+}
+
+/// The bridge's result as a [`Recognition`] (detections not yet ranked), with the cluster
+/// outcomes worded as `Recognizer` words them.
+fn convert(r: ReferenceResult, p: &Params) -> Result<ReferenceRun> {
+    const ICP: &str = "IterativeClosestPoint";
+    let final_kp: Vec<Point> = r
+        .model_final_keypoints
+        .chunks_exact(3)
+        .map(|c| [c[0], c[1], c[2]])
+        .collect();
+    let up = Vector3::from(p.up).normalize();
+    let c = centroid(&final_kp);
+    let not_rigid = || input("reference pipeline", "returned a pose that is not rigid");
+
+    let mut detections = Vec::with_capacity(r.detections.len());
+    for d in &r.detections {
+        let pose = from_mat4(&d.pose).ok_or_else(not_rigid)?;
+        let initial_pose = from_mat4(&d.initial_pose).ok_or_else(not_rigid)?;
+        let error = match d.icp_error_kind {
+            0 => None,
+            1 => Some(
+                binpick_pcl::Error::Pcl {
+                    call: ICP,
+                    message: d.icp_error.clone(),
+                }
+                .to_string(),
+            ),
+            _ => Some(
+                binpick_pcl::Error::ImproperRotation {
+                    call: ICP,
+                    det: d.icp_det,
+                }
+                .to_string(),
+            ),
+        };
+        let fitness_ok = error.is_none() && d.icp_fitness.is_finite() && d.icp_fitness < 1e300;
+        let fpfh_radius_mm = usize::try_from(d.fpfh_radius_index)
+            .ok()
+            .and_then(|i| p.fpfh_radii_mm.get(i).copied());
+        if p.algorithm == Algorithm::SeparatedFpfh && fpfh_radius_mm.is_none() {
+            return Err(input(
+                "reference pipeline",
+                format!("returned FPFH radius index {}", d.fpfh_radius_index),
+            ));
+        }
+        detections.push(Detection {
+            rank: 0,
+            pose,
+            initial_pose,
+            initial_score: d.initial_score,
+            final_score: d.final_score,
+            score_before_icp: d.score_before_icp,
+            cluster: d.cluster as usize,
+            cluster_round: 0,
+            fpfh_radius_mm,
+            sac_threshold_mm: d.sac_threshold,
+            sac_inliers: d.sac_inliers as usize,
+            icp: IcpReport {
+                converged: d.icp_converged,
+                iterations: d.icp_iterations,
+                fitness_mm2: fitness_ok.then_some(d.icp_fitness),
+                adopted: d.icp_adopted,
+                error,
+            },
+            height_mm: (pose * c).coords.dot(&up),
+            rank_reason: String::new(),
+        });
+    }
+
+    let clusters = r
+        .clusters
+        .iter()
+        .enumerate()
+        .map(|(index, c)| {
+            let outcome = match c.outcome {
+                0 => "no RANSAC consensus".to_owned(),
+                1 => format!("initial score {:.1} >= {}", c.score, p.initial_score_max),
+                2 => format!(
+                    "final score {:.1} % >= {} %",
+                    c.score, p.final_score_max_pct
+                ),
+                _ => "1 detection(s); then accepted".to_owned(),
+            };
+            ClusterReport {
+                index,
+                points: c.points as usize,
+                detections: usize::from(c.outcome == 3),
+                regions: 1,
+                outcome,
+            }
+        })
+        .collect();
+
+    let t = &r.timings;
+    let recognition = Recognition {
+        detections,
+        preprocess: PreprocessReport {
+            input_points: r.input_points as usize,
+            outside_roi: r.outside_roi as usize,
+            voxel_merged: r.voxel_merged as usize,
+            support_planes: r
+                .support_planes
+                .iter()
+                .map(|s| RemovedPlane {
+                    coefficients: s.coefficients,
+                    points: s.points as usize,
+                })
+                .collect(),
+            remaining: r.remaining as usize,
+        },
+        clusters,
+        duplicates_suppressed: 0,
+        timings: Timings {
+            model_preparation_ms: t.model_preparation_ms,
+            preprocess_ms: t.preprocess_ms,
+            clustering_ms: t.clustering_ms,
+            initial_alignment_ms: t.initial_alignment_ms,
+            final_alignment_ms: t.final_alignment_ms,
+            ranking_ms: 0.0,
+            total_ms: t.total_ms,
+        },
+    };
+    Ok(ReferenceRun {
+        recognition,
+        stages: ReferenceStages {
+            model_features_ms: t.model_features_ms,
+            cluster_keypoints_ms: t.cluster_keypoints_ms,
+            cluster_fpfh_ms: t.cluster_fpfh_ms,
+            correspondences_ms: t.correspondences_ms,
+            rejection_ms: t.rejection_ms,
+            svd_ms: t.svd_ms,
+            euclidean_score_ms: t.euclidean_score_ms,
+            icp_ms: t.icp_ms,
+            outlier_score_ms: t.outlier_score_ms,
+            omp_threads: t.omp_threads,
+            omp_max_active_levels: t.omp_max_active_levels,
+        },
+    })
+}
