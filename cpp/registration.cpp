@@ -244,6 +244,10 @@ IcpResult icp_align(const Cloud& target, rust::Slice<const float> source_xyz,
   icp.setMaxCorrespondenceDistance(params.max_correspondence_distance);
   icp.setMaximumIterations(static_cast<int>(params.max_iterations));
   icp.setTransformationEpsilon(params.transformation_epsilon);
+  if (params.relative_mse > 0.0) {
+    if (!std::isfinite(params.relative_mse)) fail("ICP relative MSE threshold must be finite");
+    icp.setEuclideanFitnessEpsilon(params.relative_mse);
+  }
   PointCloudXYZ aligned;
   icp.align(aligned, guess);
 

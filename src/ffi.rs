@@ -34,6 +34,9 @@ pub(crate) mod bridge {
         /// Answer each iteration's nearest-neighbour queries in one FLANN call (same results
         /// as PCL's per-point search, several times faster).
         batch_correspondences: bool,
+        /// Also stop when the mean squared correspondence distance changes by less than this
+        /// fraction between iterations (PCL's Euclidean fitness epsilon); 0 = off.
+        relative_mse: f64,
     }
 
     struct IcpResult {

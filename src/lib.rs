@@ -276,6 +276,9 @@ pub struct IcpParams {
     /// PCL builds, instead of PCL's one query per point: identical correspondences, several
     /// times faster. `false` runs PCL's default `CorrespondenceEstimation`.
     pub batch_correspondences: bool,
+    /// Also stop when the mean squared correspondence distance changes by less than this
+    /// fraction between two iterations (`setEuclideanFitnessEpsilon`); 0 = off (PCL default).
+    pub relative_mse: f64,
 }
 
 /// Why ICP stopped (`pcl::registration::DefaultConvergenceCriteria::ConvergenceState`).
@@ -417,6 +420,7 @@ impl IndexedCloud {
             max_iterations: params.max_iterations,
             transformation_epsilon: params.transformation_epsilon,
             batch_correspondences: params.batch_correspondences,
+            relative_mse: params.relative_mse,
         };
         let r = bridge::icp_align(self.cloud(), flat(source), &p).map_err(pcl_err(CALL))?;
         check_proper(CALL, &r.transform)?;

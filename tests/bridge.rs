@@ -97,6 +97,7 @@ fn icp_recovers_a_known_rigid_transform() {
                 max_iterations: 50,
                 transformation_epsilon: 1e-7,
                 batch_correspondences: true,
+                relative_mse: 0.0,
             },
         )
         .unwrap();
@@ -135,6 +136,7 @@ fn batched_icp_correspondences_match_pcl_exactly() {
                     max_iterations: 50,
                     transformation_epsilon: 1e-7,
                     batch_correspondences: batch,
+                    relative_mse: 0.0,
                 },
             )
             .unwrap()
@@ -438,6 +440,7 @@ fn bad_input_is_an_error_not_a_crash() {
                 max_iterations: iters,
                 transformation_epsilon: 1e-7,
                 batch_correspondences: true,
+                relative_mse: 0.0,
             },
         )
     };
@@ -455,6 +458,7 @@ fn bad_input_is_an_error_not_a_crash() {
                     max_iterations: 5,
                     transformation_epsilon: 1e-7,
                     batch_correspondences: true,
+                    relative_mse: 0.0,
                 }
             )
             .is_err()
@@ -478,6 +482,7 @@ fn the_bridge_survives_calls_from_several_threads() {
         max_iterations: 50,
         transformation_epsilon: 1e-7,
         batch_correspondences: true,
+        relative_mse: 0.0,
     };
     let kp = uniform_sampling(&model, 3.0).unwrap();
     let fp = FpfhParams {

@@ -629,13 +629,15 @@ Initial initial_alignment(const PointCloudXYZ::Ptr& model, const PointCloudXYZ::
   const bool merged = p.algorithm == 2;
 
   // Sweeps the SAC thresholds over one correspondence set (step iii / 1d).
-  auto sweep = [&](const pcl::Correspondences& corrs, std::size_t set_index, int radius_index) {
+  auto sweep = [&](const pcl::Correspondences& corrs, int radius_index) {
     for (std::size_t k = 0; k < n_th; ++k) {
-      const std::size_t order = set_index * n_th + k;
+      // The permutation stream is keyed by the radius (0 for Algorithm 2's merged set), as in
+      // align.rs, so a radius without descriptors does not shift the others' draws.
+      const std::size_t stream = static_cast<std::size_t>(radius_index < 0 ? 0 : radius_index) * n_th + k;
       Pose pose;
       double score = 0.0;
       std::size_t inliers = 0;
-      if (!hypothesis(mk.keypoints, cl.keypoints, shuffled(corrs, order), p.sac_thresholds[k], p,
+      if (!hypothesis(mk.keypoints, cl.keypoints, shuffled(corrs, stream), p.sac_thresholds[k], p,
                       t, pose, score, inliers)) {
         continue;
       }
@@ -653,7 +655,6 @@ Initial initial_alignment(const PointCloudXYZ::Ptr& model, const PointCloudXYZ::
   // (b) for each FPFH radius: features on object and cluster, correspondences, then either
   // the threshold sweep (Algorithm 1) or accumulation for the merged set (Algorithm 2).
   std::vector<pcl::Correspondences> sets;
-  std::size_t set_index = 0;
   for (std::size_t r = 0; r < p.fpfh_radii.size(); ++r) {
     const double radius = p.fpfh_radii[r];
     t0 = Clock::now();
@@ -669,15 +670,14 @@ Initial initial_alignment(const PointCloudXYZ::Ptr& model, const PointCloudXYZ::
     if (merged) {
       sets.push_back(std::move(corrs));
     } else {
-      sweep(corrs, set_index, static_cast<int>(r));
+      sweep(corrs, static_cast<int>(r));
     }
-    ++set_index;
   }
   if (merged) {
     t0 = Clock::now();
     const auto all = merge_best(sets, mk.keypoints->size());
     t.correspondences += ms_since(t0);
-    sweep(all, 0, -1);
+    sweep(all, -1);
   }
   return best;
 }

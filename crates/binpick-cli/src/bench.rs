@@ -1,10 +1,13 @@
-//! `binpick bench`: median time per stage and per scene, over repeated runs in one process.
+//! `binpick bench`: median time per stage and per scene, over repeated runs in one process;
+//! with `--engine both`, the Rust orchestration and the reference C++ pipeline side by side on
+//! the same scenes, with the speed ratio measured in that one run.
 
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use binpick::eval::median_p95;
-use binpick::{Recognizer, Timings};
+use binpick::reference::recognize_reference;
+use binpick::{Params, PointCloud, Recognition, Recognizer, Timings};
 use serde::Serialize;
 
 use crate::config::{ParamArgs, load, log, write_json};
@@ -25,6 +28,18 @@ pub struct Args {
     /// Write the measurements as JSON.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// `rust`, `reference` or `both`. `both` runs the Rust engine in thesis-strict mode (the
+    /// reference always runs the thesis exactly), checks the detections agree and prints
+    /// reference time / Rust time per scene.
+    #[arg(long, value_enum, default_value_t = BenchEngine::Rust)]
+    pub engine: BenchEngine,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BenchEngine {
+    Rust,
+    Reference,
+    Both,
 }
 
 #[derive(Serialize, Clone, Debug)]
@@ -43,10 +58,34 @@ pub struct StageMedians {
 #[derive(Serialize)]
 pub struct SceneBench {
     pub scene: String,
+    /// `rust` or `reference`.
+    pub engine: &'static str,
     pub points: usize,
     pub detections: usize,
     pub runs: usize,
     pub median: StageMedians,
+}
+
+/// `--engine both`: one scene, both engines.
+#[derive(Serialize)]
+pub struct SceneComparison {
+    pub scene: String,
+    /// Median total reference / median total Rust (same process, same thread count).
+    pub speedup: f64,
+    /// Same as `speedup` but with the Rust model preparation charged to every scene.
+    pub speedup_with_preparation: f64,
+    pub same_detection_count: bool,
+    /// Largest pose difference between matched detections, mm and degrees.
+    pub max_translation_diff_mm: f64,
+    pub max_rotation_diff_deg: f64,
+}
+
+#[derive(Serialize)]
+struct BenchOutput {
+    model_preparation_ms: f64,
+    threads: usize,
+    scenes: Vec<SceneBench>,
+    comparisons: Vec<SceneComparison>,
 }
 
 pub fn medians(runs: &[Timings]) -> StageMedians {
@@ -62,20 +101,24 @@ pub fn medians(runs: &[Timings]) -> StageMedians {
     }
 }
 
-pub fn run(a: Args) -> Result<()> {
-    let params = a.params.params()?;
-    let model = load(&a.model, a.params.model_units(&params), "model")?;
-    let recognizer = Recognizer::new(&model, params.clone()).context("cannot prepare the model")?;
-    let prep_ms = recognizer.preparation().as_secs_f64() * 1000.0;
+/// One warm-up run then `repeat` timed runs.
+fn time_runs(
+    repeat: usize,
+    mut f: impl FnMut() -> binpick::Result<Recognition>,
+) -> Result<(Recognition, Vec<Timings>)> {
+    let warm = f()?;
+    let mut runs = Vec::new();
+    for _ in 0..repeat.max(1) {
+        runs.push(f()?.timings);
+    }
+    Ok((warm, runs))
+}
+
+fn print_header() {
     println!(
-        "model preparation (once per model): {prep_ms:.0} ms; {} thread(s); preset {}, algorithm {}",
-        recognizer.threads(),
-        a.params.preset.name(),
-        params.algorithm.number()
-    );
-    println!(
-        "{:<40} {:>8} {:>5} {:>10} {:>10} {:>10} {:>10} {:>8} {:>10} {:>10}",
+        "{:<40} {:<9} {:>8} {:>5} {:>10} {:>10} {:>10} {:>10} {:>8} {:>10} {:>10}",
         "scene",
+        "engine",
         "points",
         "found",
         "preproc",
@@ -86,43 +129,147 @@ pub fn run(a: Args) -> Result<()> {
         "total",
         "total p95"
     );
-    let mut out = Vec::new();
+}
+
+fn print_row(b: &SceneBench) {
+    let m = &b.median;
+    println!(
+        "{:<40} {:<9} {:>8} {:>5} {:>10.1} {:>10.1} {:>10.1} {:>10.1} {:>8.2} {:>10.1} {:>10.1}",
+        b.scene,
+        b.engine,
+        b.points,
+        b.detections,
+        m.preprocess_ms,
+        m.clustering_ms,
+        m.initial_alignment_ms,
+        m.final_alignment_ms,
+        m.ranking_ms,
+        m.total_ms,
+        m.total_p95_ms
+    );
+}
+
+/// Largest translation (mm) and rotation (deg) difference between detections matched by
+/// cluster index, and whether the counts agree.
+fn pose_differences(a: &Recognition, b: &Recognition) -> (bool, f64, f64) {
+    let mut dt: f64 = 0.0;
+    let mut dr: f64 = 0.0;
+    for d in &a.detections {
+        if let Some(e) = b.detections.iter().find(|e| e.cluster == d.cluster) {
+            dt = dt.max((d.pose.translation.vector - e.pose.translation.vector).norm());
+            dr = dr.max(d.pose.rotation.angle_to(&e.pose.rotation).to_degrees());
+        } else {
+            dt = f64::INFINITY;
+        }
+    }
+    (a.detections.len() == b.detections.len(), dt, dr)
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let mut params = a.params.params()?;
+    if a.engine == BenchEngine::Both && !params.thesis_strict {
+        params.thesis_strict = true;
+        log("--engine both: the Rust engine runs thesis-strict, as the reference does");
+    }
+    let model = load(&a.model, a.params.model_units(&params), "model")?;
+    let recognizer = Recognizer::new(&model, params.clone()).context("cannot prepare the model")?;
+    let prep_ms = recognizer.preparation().as_secs_f64() * 1000.0;
+    println!(
+        "model preparation (once per model, Rust engine): {prep_ms:.0} ms; {} thread(s); preset {}, algorithm {}",
+        recognizer.threads(),
+        a.params.preset.name(),
+        params.algorithm.number()
+    );
+    print_header();
+    let mut out = BenchOutput {
+        model_preparation_ms: prep_ms,
+        threads: recognizer.threads(),
+        scenes: Vec::new(),
+        comparisons: Vec::new(),
+    };
     for scene_path in &a.scene {
         let scene = load(scene_path, params.units, "scene")?;
-        let warm = recognizer.recognize(&scene)?;
-        let mut runs = Vec::new();
-        for _ in 0..a.repeat.max(1) {
-            runs.push(recognizer.recognize(&scene)?.timings);
-        }
-        let m = medians(&runs);
-        println!(
-            "{:<40} {:>8} {:>5} {:>10.1} {:>10.1} {:>10.1} {:>10.1} {:>8.2} {:>10.1} {:>10.1}",
-            scene_path.display().to_string(),
-            scene.len(),
-            warm.detections.len(),
-            m.preprocess_ms,
-            m.clustering_ms,
-            m.initial_alignment_ms,
-            m.final_alignment_ms,
-            m.ranking_ms,
-            m.total_ms,
-            m.total_p95_ms
-        );
-        out.push(SceneBench {
-            scene: scene_path.display().to_string(),
+        let name = scene_path.display().to_string();
+        let row = |engine, warm: &Recognition, runs: &[Timings]| SceneBench {
+            scene: name.clone(),
+            engine,
             points: scene.len(),
             detections: warm.detections.len(),
             runs: runs.len(),
-            median: m,
-        });
+            median: medians(runs),
+        };
+        let rust = match a.engine {
+            BenchEngine::Rust | BenchEngine::Both => {
+                let (warm, runs) = time_runs(a.repeat, || recognizer.recognize(&scene))?;
+                let b = row("rust", &warm, &runs);
+                print_row(&b);
+                let total = b.median.total_ms;
+                out.scenes.push(b);
+                Some((warm, total))
+            }
+            BenchEngine::Reference => None,
+        };
+        let reference = match a.engine {
+            BenchEngine::Reference | BenchEngine::Both => {
+                let (warm, runs) = time_reference(a.repeat, &model, &scene, &params)?;
+                let b = row("reference", &warm, &runs);
+                print_row(&b);
+                let total = b.median.total_ms;
+                out.scenes.push(b);
+                Some((warm, total))
+            }
+            BenchEngine::Rust => None,
+        };
+        if let (Some((r, rust_ms)), Some((c, ref_ms))) = (rust, reference) {
+            let (same, dt, dr) = pose_differences(&r, &c);
+            out.comparisons.push(SceneComparison {
+                scene: name.clone(),
+                speedup: ref_ms / rust_ms,
+                speedup_with_preparation: ref_ms / (rust_ms + prep_ms),
+                same_detection_count: same,
+                max_translation_diff_mm: dt,
+                max_rotation_diff_deg: dr,
+            });
+        }
     }
     println!(
         "(ms, medians of {} runs; * = summed over worker threads, wall time is 'total')",
         a.repeat.max(1)
     );
+    if !out.comparisons.is_empty() {
+        println!(
+            "\n{:<40} {:>9} {:>18} {:>10} {:>12} {:>12}",
+            "scene", "speedup", "with model prep", "same count", "max dt mm", "max dr deg"
+        );
+        for c in &out.comparisons {
+            println!(
+                "{:<40} {:>8.2}x {:>17.2}x {:>10} {:>12.3} {:>12.3}",
+                c.scene,
+                c.speedup,
+                c.speedup_with_preparation,
+                c.same_detection_count,
+                c.max_translation_diff_mm,
+                c.max_rotation_diff_deg
+            );
+        }
+        let ratios: Vec<f64> = out.comparisons.iter().map(|c| c.speedup).collect();
+        println!(
+            "median speedup (reference total / Rust total): {:.2}x",
+            median_p95(&ratios).0
+        );
+    }
     if let Some(path) = &a.json {
         write_json(path, &out)?;
         log(&format!("wrote {}", path.display()));
     }
     Ok(())
+}
+
+fn time_reference(
+    repeat: usize,
+    model: &PointCloud,
+    scene: &PointCloud,
+    params: &Params,
+) -> Result<(Recognition, Vec<Timings>)> {
+    time_runs(repeat, || recognize_reference(model, scene, params))
 }

@@ -32,23 +32,54 @@ pub struct Args {
     /// Print only the JSON-equivalent table, no per-cluster report.
     #[arg(long, short)]
     pub quiet: bool,
+    /// Which pipeline recognises: `rust` (binpick's orchestration) or `reference` (the
+    /// thesis's Algorithms 1/2 written directly in C++ against PCL; always runs the thesis
+    /// exactly, as `--thesis-strict`).
+    #[arg(long, value_enum, default_value_t = Engine::Rust)]
+    pub engine: Engine,
+}
+
+/// The two recognition pipelines.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Engine {
+    Rust,
+    Reference,
+}
+
+impl Engine {
+    pub fn name(self) -> &'static str {
+        match self {
+            Engine::Rust => "rust",
+            Engine::Reference => "reference",
+        }
+    }
 }
 
 pub fn run(a: Args) -> Result<()> {
     let params = a.params.params()?;
     let model = load(&a.model, a.params.model_units(&params), "model")?;
     let scene = load(&a.scene, params.units, "scene")?;
-    let recognizer = Recognizer::new(&model, params.clone()).context("cannot prepare the model")?;
-    log(&format!(
-        "model prepared in {:.0} ms: {} points, {} keypoints, {} FPFH radii, diameter {:.1} mm; {} thread(s)",
-        recognizer_prep_ms(&recognizer),
-        recognizer.model().cloud.len(),
-        recognizer.model().initial_keypoints.len(),
-        recognizer.model().features.len(),
-        recognizer.model().diameter_mm,
-        recognizer.threads()
-    ));
-    let result = recognizer.recognize(&scene).context("recognition failed")?;
+    let result = match a.engine {
+        Engine::Rust => {
+            let recognizer =
+                Recognizer::new(&model, params.clone()).context("cannot prepare the model")?;
+            log(&format!(
+                "model prepared in {:.0} ms: {} points, {} keypoints, {} FPFH radii, diameter {:.1} mm; {} thread(s)",
+                recognizer_prep_ms(&recognizer),
+                recognizer.model().cloud.len(),
+                recognizer.model().initial_keypoints.len(),
+                recognizer.model().features.len(),
+                recognizer.model().diameter_mm,
+                recognizer.threads()
+            ));
+            recognizer.recognize(&scene).context("recognition failed")?
+        }
+        Engine::Reference => {
+            log("reference engine: thesis Algorithms 1/2 in C++ against PCL, one part per cluster");
+            binpick::reference::recognize_reference(&model, &scene, &params)
+                .context("reference recognition failed")?
+        }
+    };
     log(&summary(&result));
     if !a.quiet {
         for c in &result.clusters {
@@ -62,7 +93,7 @@ pub fn run(a: Args) -> Result<()> {
     let mut report = RecognitionReport::new(
         &a.scene.display().to_string(),
         &a.model.display().to_string(),
-        "rust",
+        a.engine.name(),
         &params,
         &result,
     );

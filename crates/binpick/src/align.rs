@@ -42,12 +42,60 @@ struct Hypothesis {
     alignment: InitialAlignment,
 }
 
-/// Thesis 4.1 step 1a-b for one cluster: keypoints, FPFH per radius, then Algorithm 1 or 2;
-/// the hypothesis with the best Euclidean score (step D). `Ok(None)` when the cluster yields
-/// no transform at all (too few keypoints or no RANSAC consensus at any threshold).
+/// A cluster's uniform keypoints and their FPFH descriptors for every radius (thesis 4.1 step
+/// 1a-b), computed once per cluster and shared by every search inside it.
+#[derive(Clone, Debug)]
+pub struct ClusterFeatures {
+    /// Keypoint indices into the cluster's points, ascending.
+    pub keypoint_idx: Vec<u32>,
+    pub keypoints: Vec<Point>,
+    /// One entry per radius of `Params::fpfh_radii_mm`, keypoint indices into `keypoints`.
+    pub features: Vec<RadiusFeatures>,
+}
+
+impl ClusterFeatures {
+    /// Keypoints at the initial leaf and FPFH per radius (radii in parallel, PCL's OpenMP at
+    /// one thread). `Ok(None)` with fewer than 3 keypoints.
+    pub(crate) fn new(
+        cluster: &[Point],
+        params: &Params,
+        deadline: &Deadline,
+    ) -> Result<Option<Self>> {
+        let keypoint_idx = keypoints(cluster, params.initial_leaf_mm)?;
+        if keypoint_idx.len() < 3 {
+            return Ok(None);
+        }
+        let keypoints: Vec<Point> = keypoint_idx.iter().map(|&i| cluster[i as usize]).collect();
+        let (surface, surface_kp) =
+            feature_surface(cluster, &keypoint_idx, &keypoints, params.feature_surface)?;
+        let features = params
+            .fpfh_radii_mm
+            .par_iter()
+            .map(|&r| {
+                deadline.check("cluster FPFH")?;
+                fpfh_for_radius(
+                    &surface,
+                    &surface_kp,
+                    r,
+                    params,
+                    params.scene_viewpoint_mm,
+                    1,
+                )
+            })
+            .collect::<Result<_>>()?;
+        Ok(Some(Self {
+            keypoint_idx,
+            keypoints,
+            features,
+        }))
+    }
+}
+
+/// Thesis 4.1 / 4.2 steps 1b-D over a cluster (or, outside thesis_strict mode, a sphere,
+/// remainder or split of one): the hypothesis with the best Euclidean score, or `Ok(None)`.
 pub(crate) fn initial_alignment(
     model: &PreparedModel,
-    cluster: &[Point],
+    cluster: &ClusterFeatures,
     params: &Params,
     deadline: &Deadline,
 ) -> Result<Option<InitialAlignment>> {
@@ -56,43 +104,21 @@ pub(crate) fn initial_alignment(
         .next())
 }
 
-/// Every hypothesis of the sweep (one per correspondence set and threshold that produced a
-/// transform), best Euclidean score first; ties keep the loop order (earlier radius and
-/// threshold first).
+/// Every hypothesis of the sweep over the cluster's keypoints (one per correspondence set and
+/// threshold that produced a transform), best Euclidean score first; ties keep the loop
+/// order (earlier radius and threshold first).
 pub(crate) fn initial_hypotheses(
     model: &PreparedModel,
-    cluster: &[Point],
+    cluster: &ClusterFeatures,
     params: &Params,
     deadline: &Deadline,
 ) -> Result<Vec<InitialAlignment>> {
-    let kp_idx = keypoints(cluster, params.initial_leaf_mm)?;
-    if kp_idx.len() < 3 {
-        return Ok(Vec::new());
-    }
-    let kp: Vec<Point> = kp_idx.iter().map(|&i| cluster[i as usize]).collect();
-    let (surface, surface_kp) = feature_surface(cluster, &kp_idx, &kp, params.feature_surface)?;
-    // Radii in parallel; PCL's own OpenMP stays at one thread inside a cluster task.
-    let features: Vec<RadiusFeatures> = params
-        .fpfh_radii_mm
-        .par_iter()
-        .map(|&r| {
-            deadline.check("cluster FPFH")?;
-            fpfh_for_radius(
-                &surface,
-                &surface_kp,
-                r,
-                params,
-                params.scene_viewpoint_mm,
-                1,
-            )
-        })
-        .collect::<Result<_>>()?;
-    let world =
-        NearestIndex::new(&kp).map_err(|e| crate::error::input("cluster", e.to_string()))?;
+    let kp = &cluster.keypoints;
+    let world = NearestIndex::new(kp).map_err(|e| crate::error::input("cluster", e.to_string()))?;
 
     // (radius index or None, correspondences in keypoint indices)
     let mut sets: Vec<(Option<usize>, Vec<Correspondence>)> = Vec::new();
-    for (r, (m, c)) in model.features.iter().zip(&features).enumerate() {
+    for (r, (m, c)) in model.features.iter().zip(&cluster.features).enumerate() {
         if c.descriptors.is_empty() {
             continue;
         }
@@ -116,6 +142,7 @@ pub(crate) fn initial_hypotheses(
     }
 
     // Every (correspondence set, SAC threshold) pair is an independent hypothesis (step iii).
+    // Its RANSAC draws come from a permutation stream keyed by (radius, threshold).
     let n_th = params.sac_thresholds_mm.len();
     let jobs: Vec<(usize, usize)> = (0..sets.len())
         .flat_map(|s| (0..n_th).map(move |t| (s, t)))
@@ -125,10 +152,10 @@ pub(crate) fn initial_hypotheses(
         .map(|&(s, t)| {
             deadline.check("RANSAC threshold sweep")?;
             let (radius, corrs) = &sets[s];
-            let order = s * n_th + t;
+            let order = radius.unwrap_or(0) * n_th + t;
             hypothesis(
                 model,
-                &kp,
+                kp,
                 &world,
                 &shuffled(corrs, order as u64),
                 params.sac_thresholds_mm[t],
@@ -154,6 +181,7 @@ pub(crate) fn initial_hypotheses(
     });
     // The best few hypotheses, each composed with the model's near-symmetries (a flipped match
     // T of a nearly symmetric part becomes T * S, close to the true pose), scored the same way.
+    let stride = params.fpfh_radii_mm.len() * n_th;
     let flips: Vec<Hypothesis> = all
         .iter()
         .take(SYMMETRY_EXPANDED)
@@ -161,7 +189,7 @@ pub(crate) fn initial_hypotheses(
             model.near_symmetries.iter().enumerate().map(|(k, s)| {
                 let pose = h.alignment.pose * s;
                 Hypothesis {
-                    order: jobs.len() * (k + 1) + h.order,
+                    order: stride * (k + 1) + h.order,
                     alignment: InitialAlignment {
                         pose,
                         score: euclidean_score(&world, &model.initial_keypoints, &pose),
@@ -181,13 +209,17 @@ pub(crate) fn initial_hypotheses(
     Ok(all.into_iter().map(|h| h.alignment).collect())
 }
 
-/// [`initial_hypotheses`] without a time budget (diagnostics, tests).
+/// All hypotheses for a whole cluster, without a time budget (diagnostics, tests).
 pub fn initial_hypotheses_unbounded(
     model: &PreparedModel,
     cluster: &[Point],
     params: &Params,
 ) -> Result<Vec<InitialAlignment>> {
-    initial_hypotheses(model, cluster, params, &Deadline::new(None))
+    let deadline = Deadline::new(None);
+    match ClusterFeatures::new(cluster, params, &deadline)? {
+        Some(cf) => initial_hypotheses(model, &cf, params, &deadline),
+        None => Ok(Vec::new()),
+    }
 }
 
 /// The correspondences in a pseudo-random order fixed by `stream`. PCL seeds every RANSAC
@@ -314,19 +346,31 @@ fn hypothesis(
 pub(crate) struct FinalWorld {
     pub pcl: IndexedCloud,
     pub index: NearestIndex,
+    /// The world at scan resolution, for the fine ICP pass (`Params::icp_refine`).
+    pub dense: Option<IndexedCloud>,
 }
 
 impl FinalWorld {
     pub(crate) fn new(world: &[Point], params: &Params) -> Result<Self> {
         let idx = keypoints(world, params.final_leaf_mm)?;
         let pts: Vec<Point> = idx.iter().map(|&i| world[i as usize]).collect();
+        let dense = if params.icp_refine && !params.thesis_strict {
+            Some(IndexedCloud::new(world).map_err(pcl("scene upload"))?)
+        } else {
+            None
+        };
         Ok(Self {
             pcl: IndexedCloud::new(&pts).map_err(pcl("final keypoints upload"))?,
             index: NearestIndex::new(&pts)
                 .map_err(|e| crate::error::input("scene", e.to_string()))?,
+            dense,
         })
     }
 }
+
+/// The fine ICP pass runs for candidates whose percent of outliers is below this multiple
+/// of the final threshold.
+const REFINE_BELOW_FACTOR: f64 = 2.0;
 
 /// What ICP did for one detection.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -364,61 +408,91 @@ pub(crate) fn final_alignment(
     params: &Params,
 ) -> FinalAlignment {
     let d = params.outlier_distance_mm;
-    let before = outlier_percent(&world.index, &model.final_keypoints, initial, d);
+    let kp = &model.final_keypoints;
+    let before = outlier_percent(&world.index, kp, initial, d);
+    let mut result = FinalAlignment {
+        pose: *initial,
+        score: before,
+        score_before_icp: before,
+        icp: IcpReport {
+            converged: false,
+            iterations: 0,
+            fitness_mm2: None,
+            adopted: false,
+            error: None,
+        },
+    };
     let icp = world.pcl.icp(
-        &model.final_keypoints,
+        kp,
         &IcpParams {
             initial: to_mat4(initial),
             max_correspondence_distance: params.icp_max_correspondence_mm,
             max_iterations: params.icp_iterations,
             transformation_epsilon: params.icp_transformation_epsilon,
             batch_correspondences: true,
+            relative_mse: params.effective_icp_relative_mse(),
         },
     );
-    let (refined, mut report) = match icp {
-        Ok(out) => (
-            from_mat4(&out.transform),
-            IcpReport {
-                converged: out.converged,
-                iterations: out.iterations,
-                fitness_mm2: (out.fitness.is_finite() && out.fitness < 1e300)
-                    .then_some(out.fitness),
-                adopted: false,
-                error: None,
+    match icp {
+        Ok(out) => {
+            result.icp.converged = out.converged;
+            result.icp.iterations = out.iterations;
+            result.icp.fitness_mm2 =
+                (out.fitness.is_finite() && out.fitness < 1e300).then_some(out.fitness);
+            if let Some(pose) = from_mat4(&out.transform) {
+                result.icp.adopted = adopt_if_better(world, kp, d, &mut result, pose);
+            }
+        }
+        Err(e) => result.icp.error = Some(e.to_string()),
+    }
+    // Fine pass, only for a part that is accepted or nearly so (within twice the final
+    // threshold; the fine fit can bring a noisy near-miss under it): the model at scan resolution onto
+    // the world at scan resolution, correspondences within two resolutions. Point-to-point
+    // ICP between two 2 mm keypoint samplings has ripples at the keypoint spacing that can stop
+    // it short along a part's weakly constrained directions (a bent sheet's bend line).
+    if let Some(dense) = &world.dense
+        && result.score < REFINE_BELOW_FACTOR * params.final_score_max_pct
+    {
+        let fine = dense.icp(
+            &model.cloud,
+            &IcpParams {
+                initial: to_mat4(&result.pose),
+                max_correspondence_distance: 2.0 * params.resolution_mm,
+                max_iterations: params.icp_iterations,
+                transformation_epsilon: params.icp_transformation_epsilon,
+                batch_correspondences: true,
+                relative_mse: 0.0,
             },
-        ),
-        Err(e) => (
-            None,
-            IcpReport {
-                converged: false,
-                iterations: 0,
-                fitness_mm2: None,
-                adopted: false,
-                error: Some(e.to_string()),
-            },
-        ),
-    };
-    let mut result = FinalAlignment {
-        pose: *initial,
-        score: before,
-        score_before_icp: before,
-        icp: report.clone(),
-    };
-    if let Some(pose) = refined {
-        let after = outlier_percent(&world.index, &model.final_keypoints, &pose, d);
-        // "If the score is better than before" (step 3d). The percent of outliers saturates at
-        // 0 for any pose within the outlier distance, so equal scores are decided by the
-        // Euclidean score (3.1.1) of the same keypoints, which ICP minimises.
-        let better = after < before
-            || (after == before
-                && euclidean_score(&world.index, &model.final_keypoints, &pose)
-                    < euclidean_score(&world.index, &model.final_keypoints, initial));
-        if better {
-            report.adopted = true;
-            result.pose = pose;
-            result.score = after;
+        );
+        if let Ok(out) = fine {
+            result.icp.iterations += out.iterations;
+            if let Some(pose) = from_mat4(&out.transform) {
+                result.icp.adopted |= adopt_if_better(world, kp, d, &mut result, pose);
+            }
         }
     }
-    result.icp = report;
     result
+}
+
+/// Step 3d, "if the score is better than before, then transform": adopts `pose` when its
+/// percent of outliers is lower, or equal with a lower Euclidean score (3.1.1) of the same
+/// keypoints (the percent of outliers saturates at 0 for any pose within the outlier
+/// distance, and ICP minimises the Euclidean score).
+fn adopt_if_better(
+    world: &FinalWorld,
+    kp: &[Point],
+    d: f64,
+    result: &mut FinalAlignment,
+    pose: Isometry3<f64>,
+) -> bool {
+    let after = outlier_percent(&world.index, kp, &pose, d);
+    let better = after < result.score
+        || (after == result.score
+            && euclidean_score(&world.index, kp, &pose)
+                < euclidean_score(&world.index, kp, &result.pose));
+    if better {
+        result.pose = pose;
+        result.score = after;
+    }
+    better
 }

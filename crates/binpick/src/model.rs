@@ -95,7 +95,7 @@ impl PreparedModel {
         let diameter_mm = diameter(&initial_keypoints);
         let radius_mm = radius(&cloud);
         let near_symmetries = if params.symmetry_candidates && !params.thesis_strict {
-            near_symmetries(&cloud, &final_keypoints, diameter_mm, params)?
+            near_symmetries(&cloud, &initial_keypoints, diameter_mm, params)?
         } else {
             Vec::new()
         };
@@ -117,7 +117,7 @@ impl PreparedModel {
 /// RANSAC consensus then lands on the flipped pose.
 fn near_symmetries(
     cloud: &[Point],
-    final_kp: &[Point],
+    keypoints: &[Point],
     diameter_mm: f64,
     params: &Params,
 ) -> Result<Vec<Isometry3<f64>>> {
@@ -132,38 +132,46 @@ fn near_symmetries(
     }) / n;
     let axes = cov.symmetric_eigen().eigenvectors;
     let target = IndexedCloud::new(cloud).map_err(pcl("model self-registration"))?;
-    let sample = crate::eval::scoring_points(final_kp, 500);
+    let sample = crate::eval::scoring_points(keypoints, 500);
+    // The three half-turns refined in parallel (self-registration starts far from the
+    // surface, so its nearest-neighbour searches are the slow kind); kept in axis order.
+    let refined: Vec<Isometry3<f64>> = (0..3)
+        .into_par_iter()
+        .map(|k| {
+            let axis = Unit::new_normalize(axes.column(k).into_owned());
+            let turn = Translation3::from(c)
+                * UnitQuaternion::from_axis_angle(&axis, std::f64::consts::PI)
+                * Translation3::from(-c);
+            target
+                .icp(
+                    keypoints,
+                    &IcpParams {
+                        initial: to_mat4(&turn),
+                        max_correspondence_distance: params.icp_max_correspondence_mm,
+                        max_iterations: params.icp_iterations,
+                        transformation_epsilon: params.icp_transformation_epsilon,
+                        batch_correspondences: true,
+                        relative_mse: params.effective_icp_relative_mse(),
+                    },
+                )
+                .ok()
+                .and_then(|o| from_mat4(&o.transform))
+                .unwrap_or(turn)
+        })
+        .collect();
     let mut found: Vec<Isometry3<f64>> = Vec::new();
-    for k in 0..3 {
-        let axis = Unit::new_normalize(axes.column(k).into_owned());
-        let turn = Translation3::from(c)
-            * UnitQuaternion::from_axis_angle(&axis, std::f64::consts::PI)
-            * Translation3::from(-c);
-        let refined = target
-            .icp(
-                final_kp,
-                &IcpParams {
-                    initial: to_mat4(&turn),
-                    max_correspondence_distance: params.icp_max_correspondence_mm,
-                    max_iterations: params.icp_iterations,
-                    transformation_epsilon: params.icp_transformation_epsilon,
-                    batch_correspondences: true,
-                },
-            )
-            .ok()
-            .and_then(|o| from_mat4(&o.transform))
-            .unwrap_or(turn);
+    for r in refined {
         // Keep it unless ICP slid back to the identity or to one already found.
         let distinct = |a: &Isometry3<f64>| {
             let d = sample
                 .iter()
-                .map(|p: &Point3<f64>| (a * p - refined * p).norm())
+                .map(|p: &Point3<f64>| (a * p - r * p).norm())
                 .sum::<f64>()
                 / sample.len().max(1) as f64;
             d > 0.1 * diameter_mm
         };
         if distinct(&Isometry3::identity()) && found.iter().all(distinct) {
-            found.push(refined);
+            found.push(r);
         }
     }
     Ok(found)

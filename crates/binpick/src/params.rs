@@ -160,9 +160,19 @@ pub struct Params {
     pub icp_iterations: u32,
     /// ICP transformation epsilon (4.3 #11). Default 1e-7, range > 0.
     pub icp_transformation_epsilon: f64,
+    /// ICP also stops when the mean squared correspondence distance changes by less than this
+    /// fraction between iterations (PCL's Euclidean fitness epsilon). The thesis stops only at
+    /// 50 iterations or epsilon 1e-7, which in millimetres almost never triggers, so its ICP
+    /// always runs 50 iterations. 0 = off; off in thesis_strict mode. Default 1e-4, range 0-0.1.
+    pub icp_relative_mse: f64,
     /// ICP max correspondence distance, mm. The thesis leaves PCL's default (unbounded);
     /// bounding it keeps occluders from dragging a part. Default 10.0, range > 0.
     pub icp_max_correspondence_mm: f64,
+    /// After the thesis's ICP on final keypoints, a second ICP of the model at scan resolution
+    /// onto the scene at scan resolution (correspondences within 2 x resolution) removes the
+    /// keypoint-sampling ripples that can leave a part slid along its bend line. Not in the
+    /// thesis; off in thesis_strict mode. Default true.
+    pub icp_refine: bool,
     /// A model point farther than this from the scene is an outlier, mm (3.1.2.2). Default 4.0.
     pub outlier_distance_mm: f64,
     /// Keep a final alignment only if its percent of outliers is below this (4.3 #12).
@@ -220,6 +230,8 @@ impl Default for Params {
             icp_iterations: 50,
             icp_transformation_epsilon: 1e-7,
             icp_max_correspondence_mm: 10.0,
+            icp_refine: true,
+            icp_relative_mse: 1e-4,
             outlier_distance_mm: 4.0,
             final_score_max_pct: 20.0,
             scene_viewpoint_mm: [0.0, 0.0, 1e6],
@@ -568,6 +580,13 @@ impl Params {
             1.0,
             "expected a small positive number",
         )?;
+        check_range(
+            "icp_relative_mse",
+            self.icp_relative_mse,
+            0.0,
+            0.1,
+            "expected 0 (off) to 0.1",
+        )?;
         check_open_low(
             "icp_max_correspondence_mm",
             self.icp_max_correspondence_mm,
@@ -660,6 +679,15 @@ impl Params {
         // Serialising plain data with finite floats cannot fail; fall back to Debug if it does.
         toml::to_string_pretty(self)
             .unwrap_or_else(|e| format!("# could not serialise params: {e}\n# {self:?}\n"))
+    }
+
+    /// The ICP relative-MSE stop in effect (0 in thesis_strict mode).
+    pub fn effective_icp_relative_mse(&self) -> f64 {
+        if self.thesis_strict {
+            0.0
+        } else {
+            self.icp_relative_mse
+        }
     }
 
     /// Cluster tolerance in mm.

@@ -23,7 +23,7 @@ use serde::{Deserialize, Serialize};
 use binpick_cloud::{Point, PointCloud};
 use binpick_pcl::IndexedCloud;
 
-use crate::align::{FinalWorld, IcpReport, final_alignment, initial_alignment};
+use crate::align::{ClusterFeatures, FinalWorld, IcpReport, final_alignment, initial_alignment};
 use crate::deadline::Deadline;
 use crate::error::{Error, Result, input, pcl};
 use crate::model::PreparedModel;
@@ -307,6 +307,9 @@ impl Recognizer {
             detections = self.suppress_duplicates(detections);
         }
         let duplicates_suppressed = before - detections.len();
+        for c in &mut cluster_reports {
+            c.detections = detections.iter().filter(|d| d.cluster == c.index).count();
+        }
         rank_detections(&mut detections, p.rank_score_band_pct);
         timings.ranking_ms = ms(t.elapsed());
         timings.total_ms = ms(deadline.elapsed());
@@ -327,11 +330,13 @@ impl Recognizer {
         (min as u32, max.min(f64::from(u32::MAX)) as u32)
     }
 
-    /// Searches one cluster: initial then final alignment; outside thesis-strict mode, after
-    /// each accepted part the points it explains are removed and the rest searched again, so
-    /// touching parts merged into one cluster are all found; and a group larger than one part
-    /// that yields nothing is split at a tighter tolerance (parts resting on each other often
-    /// touch along an edge only).
+    /// Searches one cluster: keypoints and FPFH (thesis 4.1 step 1a-b), then initial and
+    /// final alignment (steps 1b-5). Outside thesis-strict mode the search also runs on parts
+    /// of the cluster, each with its own features: a cluster too big for one part (a pile) is
+    /// searched in overlapping spheres (thesis 3.4.1.2); after each accepted part the points
+    /// it explains are removed and the rest searched again, so touching parts are all found;
+    /// a group larger than one part that yields nothing is split at a tighter tolerance (parts
+    /// resting on each other often touch along an edge only).
     fn search_cluster(
         &self,
         index: usize,
@@ -353,21 +358,21 @@ impl Recognizer {
             initial_ms: 0.0,
             final_ms: 0.0,
         };
-        // (points, clustering tolerance in mm) still to search. A cluster too big for one part
-        // (a pile) is searched in overlapping spheres around it (thesis 3.4.1.2), so each
-        // search sees only a few parts' features; duplicates are suppressed at the end.
-        let regions = if !p.thesis_strict
+        let everything: Vec<u32> = (0..points.len() as u32).collect();
+        let tolerance = p.cluster_tolerance_mm();
+        // (point indices into the cluster, clustering tolerance in mm or None for a sphere,
+        // which is never split further) still to search.
+        let mut queue: VecDeque<(Vec<u32>, Option<f64>)> = if !p.thesis_strict
             && points.len() as f64 > p.sphere_split_factor * self.model.cloud.len() as f64
         {
             self.spheres(&points)?
+                .into_iter()
+                .map(|r| (r, Some(tolerance)))
+                .collect()
         } else {
-            vec![points]
+            VecDeque::from([(everything, Some(tolerance))])
         };
-        out.report.regions = regions.len();
-        let mut queue: VecDeque<(Vec<Point>, f64)> = regions
-            .into_iter()
-            .map(|r| (r, p.cluster_tolerance_mm()))
-            .collect();
+        out.report.regions = queue.len();
         let mut last_reason = String::from("no candidate");
         // Each accepted part removes at least half a minimum cluster, so this bounds the loop.
         let max_rounds = 1 + out.report.points / (min_size as usize / 2).max(1);
@@ -377,13 +382,20 @@ impl Recognizer {
                 break;
             }
             deadline.check("cluster alignment")?;
-            match self.search_part(index, &part, world, deadline, &mut out)? {
+            let region: Vec<Point> = part.iter().map(|&i| points[i as usize]).collect();
+            match self.search_part(index, &region, world, deadline, &mut out)? {
                 Ok(pose) => {
                     last_reason = "accepted".into();
                     if p.thesis_strict {
                         break;
                     }
-                    let rest = self.unexplained(&part, &pose)?;
+                    let mut mine = vec![false; points.len()];
+                    self.mark_explained(&points, &pose, &mut mine)?;
+                    let rest: Vec<u32> = part
+                        .iter()
+                        .copied()
+                        .filter(|&i| !mine[i as usize])
+                        .collect();
                     if part.len() - rest.len() < (min_size as usize / 2).max(1) {
                         last_reason =
                             "accepted part explains too few cluster points to search further"
@@ -391,21 +403,25 @@ impl Recognizer {
                         continue;
                     }
                     if rest.len() >= min_size as usize {
+                        let t = tol.unwrap_or(tolerance);
                         queue.extend(
-                            self.recluster(&rest, min_size, tol)?
+                            self.recluster(&points, &rest, min_size, t)?
                                 .into_iter()
-                                .map(|s| (s, tol)),
+                                .map(|s| (s, Some(t))),
                         );
                     }
                 }
                 Err(reason) => {
                     last_reason = reason;
-                    let tighter =
-                        (tol * TIGHTER_TOLERANCE).max(MIN_TOLERANCE_FACTOR * p.resolution_mm);
-                    if !p.thesis_strict && part.len() > self.model.cloud.len() && tighter < tol {
-                        let subs = self.recluster(&part, min_size, tighter)?;
-                        if subs.len() > 1 {
-                            queue.extend(subs.into_iter().map(|s| (s, tighter)));
+                    if let Some(tol) = tol {
+                        let tighter =
+                            (tol * TIGHTER_TOLERANCE).max(MIN_TOLERANCE_FACTOR * p.resolution_mm);
+                        if !p.thesis_strict && part.len() > self.model.cloud.len() && tighter < tol
+                        {
+                            let subs = self.recluster(&points, &part, min_size, tighter)?;
+                            if subs.len() > 1 {
+                                queue.extend(subs.into_iter().map(|s| (s, Some(tighter))));
+                            }
                         }
                     }
                 }
@@ -419,19 +435,28 @@ impl Recognizer {
         Ok(out)
     }
 
-    /// Initial then final alignment of one group of points. `Ok(Ok(pose))` when a part is
-    /// accepted (and pushed to `out`), `Ok(Err(reason))` when the group yields none.
+    /// Keypoints and FPFH of a cluster or region of one (thesis 4.1 step 1a-b), then initial
+    /// and final alignment. A region gets its own features rather than a subset of the whole
+    /// cluster's: FPFH near the cut then describes the region as the model would see it
+    /// alone, not its neighbours' surfaces. `Ok(Ok(pose))` when a part is accepted (and
+    /// pushed to `out`), `Ok(Err(reason))` when none is.
     fn search_part(
         &self,
         index: usize,
-        part: &[Point],
+        region: &[Point],
         world: &FinalWorld,
         deadline: &Deadline,
         out: &mut ClusterOutcome,
     ) -> Result<std::result::Result<Isometry3<f64>, String>> {
         let p = &self.params;
         let t = Instant::now();
-        let initial = initial_alignment(&self.model, part, p, deadline)?;
+        let initial = match ClusterFeatures::new(region, p, deadline)? {
+            Some(features) => initial_alignment(&self.model, &features, p, deadline)?,
+            None => {
+                out.initial_ms += ms(t.elapsed());
+                return Ok(Err("fewer than 3 keypoints".into()));
+            }
+        };
         out.initial_ms += ms(t.elapsed());
         let Some(initial) = initial else {
             return Ok(Err("no RANSAC consensus".into()));
@@ -474,11 +499,11 @@ impl Recognizer {
         Ok(Ok(fin.pose))
     }
 
-    /// Overlapping spheres covering a big cluster (thesis 3.4.1.2): centres are uniform
-    /// keypoints of the cluster at a leaf of one model radius (centroid to farthest point),
-    /// each sphere keeps the cluster points within 1.5 model radii. Spheres with fewer points
-    /// than the smallest cluster are dropped.
-    fn spheres(&self, points: &[Point]) -> Result<Vec<Vec<Point>>> {
+    /// Overlapping spheres covering a big cluster (thesis 3.4.1.2), as point indices: centres
+    /// are uniform keypoints of the cluster at a leaf of one model radius (centroid to farthest
+    /// point), each sphere keeps the cluster points within 1.5 model radii. Spheres with fewer
+    /// points than the smallest cluster are dropped.
+    fn spheres(&self, points: &[Point]) -> Result<Vec<Vec<u32>>> {
         let radius = self.model.radius_mm;
         let (min_size, _) = self.cluster_size_range();
         let centres =
@@ -486,18 +511,26 @@ impl Recognizer {
         let index = NearestIndex::new(points).map_err(|e| input("cluster", e.to_string()))?;
         let mut out = Vec::new();
         for c in centres {
-            let mut members =
-                index.within(&points[c as usize], (SPHERE_RADIUS_FACTOR * radius) as f32);
+            let mut members: Vec<u32> = index
+                .within(&points[c as usize], (SPHERE_RADIUS_FACTOR * radius) as f32)
+                .into_iter()
+                .map(|i| i as u32)
+                .collect();
             members.sort_unstable();
             if members.len() >= min_size as usize {
-                out.push(members.into_iter().map(|i| points[i]).collect());
+                out.push(members);
             }
         }
         Ok(out)
     }
 
-    /// Cluster points farther than the outlier distance from the placed model.
-    fn unexplained(&self, part: &[Point], pose: &Isometry3<f64>) -> Result<Vec<Point>> {
+    /// Marks the cluster points within the outlier distance of the placed model.
+    fn mark_explained(
+        &self,
+        points: &[Point],
+        pose: &Isometry3<f64>,
+        explained: &mut [bool],
+    ) -> Result<()> {
         let placed: Vec<Point> = self
             .model
             .cloud
@@ -506,26 +539,30 @@ impl Recognizer {
             .collect();
         let index = NearestIndex::new(&placed).map_err(|e| input("model", e.to_string()))?;
         let limit = (self.params.outlier_distance_mm * self.params.outlier_distance_mm) as f32;
-        Ok(part
-            .iter()
-            .filter(|q| index.nearest(q).1 > limit)
-            .copied()
-            .collect())
+        for (e, q) in explained.iter_mut().zip(points) {
+            if !*e && index.nearest(q).1 <= limit {
+                *e = true;
+            }
+        }
+        Ok(())
     }
 
+    /// Euclidean clusters of the part's points at `tolerance_mm`, as point indices.
     fn recluster(
         &self,
         points: &[Point],
+        part: &[u32],
         min_size: u32,
         tolerance_mm: f64,
-    ) -> Result<Vec<Vec<Point>>> {
-        let cloud = IndexedCloud::new(points).map_err(pcl("re-clustering"))?;
+    ) -> Result<Vec<Vec<u32>>> {
+        let sub: Vec<Point> = part.iter().map(|&i| points[i as usize]).collect();
+        let cloud = IndexedCloud::new(&sub).map_err(pcl("re-clustering"))?;
         let groups = cloud
             .euclidean_clusters(tolerance_mm as f32, min_size, u32::MAX)
             .map_err(pcl("re-clustering"))?;
         Ok(groups
             .into_iter()
-            .map(|g| g.iter().map(|&i| points[i as usize]).collect())
+            .map(|g| g.iter().map(|&k| part[k as usize]).collect())
             .collect())
     }
 

@@ -23,12 +23,23 @@ impl Rng {
 /// notch, bent up by 50 deg into a 55 x 70 mm leg with an off-centre hole. Model frame:
 /// base on z = 0, spacing `step`.
 pub fn bent_sheet(step: f64) -> Vec<[f64; 3]> {
+    bent_sheet_sampled(step, None)
+}
+
+/// The sheet sampled on a grid of `step`, each sample moved by a random offset of up to half
+/// a step along the surface when `jitter` is given: like a scanner, the samples do not follow
+/// the part's own lattice (which would let ICP lock onto the model's identical lattice).
+pub fn bent_sheet_sampled(step: f64, mut jitter: Option<&mut Rng>) -> Vec<[f64; 3]> {
+    let mut jit = move || jitter.as_mut().map_or(0.0, |r| (r.unit() - 0.5) * step);
     let mut pts = Vec::new();
     let n = |len: f64| (len / step).round() as usize;
     let (c, s) = (50f64.to_radians().cos(), 50f64.to_radians().sin());
     for i in 0..=n(60.0) {
         for j in 0..=n(70.0) {
-            let (x, y) = (i as f64 * step, j as f64 * step);
+            let (x, y) = (
+                (i as f64 * step + jit()).clamp(0.0, 60.0),
+                (j as f64 * step + jit()).clamp(0.0, 70.0),
+            );
             if x < 18.0 && y < 22.0 {
                 continue; // notch
             }
@@ -37,7 +48,10 @@ pub fn bent_sheet(step: f64) -> Vec<[f64; 3]> {
     }
     for i in 1..=n(55.0) {
         for j in 0..=n(70.0) {
-            let (u, y) = (i as f64 * step, j as f64 * step);
+            let (u, y) = (
+                (i as f64 * step + jit()).clamp(0.0, 55.0),
+                (j as f64 * step + jit()).clamp(0.0, 70.0),
+            );
             if (u - 30.0).powi(2) + (y - 50.0).powi(2) < 64.0 {
                 continue; // hole
             }
@@ -86,10 +100,10 @@ pub struct SceneSpec {
 /// sampled at 0.5 mm, lifted 2 mm (sheet thickness) above the floor, with Gaussian noise.
 pub fn scene(spec: &SceneSpec) -> PointCloud {
     let mut rng = Rng(spec.seed);
-    let dense = bent_sheet(0.5);
     let mut pts: Vec<[f64; 3]> = Vec::new();
     let (mut lo, mut hi) = ([f64::MAX; 2], [f64::MIN; 2]);
     for (k, pose) in spec.poses.iter().enumerate() {
+        let dense = bent_sheet_sampled(0.5, Some(&mut rng));
         let placed = place(pose, &dense);
         let r = spec.occluder_radius.get(k).copied().unwrap_or(0.0);
         let covered =
@@ -154,4 +168,14 @@ pub fn mean_point_distance(a: &Isometry3<f64>, b: &Isometry3<f64>) -> f64 {
         })
         .sum::<f64>()
         / pts.len() as f64
+}
+
+/// Centroid of the model's points, model frame.
+pub fn centroid() -> Point3<f64> {
+    let pts = bent_sheet(1.0);
+    let n = pts.len() as f64;
+    let s = pts
+        .iter()
+        .fold([0.0; 3], |a, p| [a[0] + p[0], a[1] + p[1], a[2] + p[2]]);
+    Point3::new(s[0] / n, s[1] / n, s[2] / n)
 }
