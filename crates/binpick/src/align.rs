@@ -92,21 +92,9 @@ impl ClusterFeatures {
 }
 
 /// Thesis 4.1 / 4.2 steps 1b-D over a cluster (or, outside thesis_strict mode, a sphere,
-/// remainder or split of one): the hypothesis with the best Euclidean score, or `Ok(None)`.
-pub(crate) fn initial_alignment(
-    model: &PreparedModel,
-    cluster: &ClusterFeatures,
-    params: &Params,
-    deadline: &Deadline,
-) -> Result<Option<InitialAlignment>> {
-    Ok(initial_hypotheses(model, cluster, params, deadline)?
-        .into_iter()
-        .next())
-}
-
-/// Every hypothesis of the sweep over the cluster's keypoints (one per correspondence set and
-/// threshold that produced a transform), best Euclidean score first; ties keep the loop
-/// order (earlier radius and threshold first).
+/// remainder or split of one): every hypothesis of the sweep (one per correspondence set and
+/// threshold that produced a transform), best Euclidean score first, so the first is the
+/// thesis's initial alignment; ties keep the loop order (earlier radius and threshold first).
 pub(crate) fn initial_hypotheses(
     model: &PreparedModel,
     cluster: &ClusterFeatures,

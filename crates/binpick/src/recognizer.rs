@@ -23,7 +23,9 @@ use serde::{Deserialize, Serialize};
 use binpick_cloud::{Point, PointCloud};
 use binpick_pcl::IndexedCloud;
 
-use crate::align::{ClusterFeatures, FinalWorld, IcpReport, final_alignment, initial_alignment};
+use crate::align::{
+    ClusterFeatures, FinalWorld, IcpReport, InitialAlignment, final_alignment, initial_hypotheses,
+};
 use crate::deadline::Deadline;
 use crate::error::{Error, Result, input, pcl};
 use crate::model::PreparedModel;
@@ -127,6 +129,11 @@ impl std::fmt::Debug for Recognizer {
 const TIGHTER_TOLERANCE: f64 = 0.75;
 const MIN_TOLERANCE_FACTOR: f64 = 1.1;
 
+/// Initial alignments closer than this (model diameters, degrees) to a better one are not
+/// retried through the final alignment (`Params::final_candidates`).
+const DISTINCT_SHIFT_DIAMETERS: f64 = 0.1;
+const DISTINCT_ANGLE_DEG: f64 = 15.0;
+
 /// Search spheres reach this many model radii from their centre.
 const SPHERE_RADIUS_FACTOR: f64 = 1.5;
 
@@ -134,7 +141,9 @@ const SPHERE_RADIUS_FACTOR: f64 = 1.5;
 const MIN_EXTENT_RESOLUTIONS: f64 = 10.0;
 const MAX_EXTENT_MM: f64 = 100_000.0;
 
-fn check_extent(what: &'static str, cloud: &PointCloud, params: &Params) -> Result<()> {
+/// Refuses empty clouds, non-finite points and extents that mean the cloud is not in mm
+/// (shared with the reference engine so both word it the same).
+pub(crate) fn check_extent(what: &'static str, cloud: &PointCloud, params: &Params) -> Result<()> {
     if cloud.is_empty() {
         return Err(input(what, "the cloud is empty"));
     }
@@ -171,7 +180,7 @@ fn check_extent(what: &'static str, cloud: &PointCloud, params: &Params) -> Resu
     Ok(())
 }
 
-fn ms(d: Duration) -> f64 {
+pub(crate) fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1000.0
 }
 
@@ -435,6 +444,31 @@ impl Recognizer {
         Ok(out)
     }
 
+    /// Up to `k` hypotheses under the initial score threshold, best first, each differing
+    /// from every earlier one by more than 10 % of the model diameter or 15 deg.
+    fn distinct_candidates<'a>(
+        &self,
+        hypotheses: &'a [InitialAlignment],
+        k: usize,
+    ) -> Vec<&'a InitialAlignment> {
+        let min_shift = DISTINCT_SHIFT_DIAMETERS * self.model.diameter_mm;
+        let min_angle = DISTINCT_ANGLE_DEG.to_radians();
+        let mut out: Vec<&InitialAlignment> = Vec::new();
+        for h in hypotheses {
+            if out.len() >= k || h.score >= self.params.initial_score_max {
+                break;
+            }
+            let distinct = out.iter().all(|o| {
+                (o.pose.translation.vector - h.pose.translation.vector).norm() > min_shift
+                    || o.pose.rotation.angle_to(&h.pose.rotation) > min_angle
+            });
+            if distinct {
+                out.push(h);
+            }
+        }
+        out
+    }
+
     /// Keypoints and FPFH of a cluster or region of one (thesis 4.1 step 1a-b), then initial
     /// and final alignment. A region gets its own features rather than a subset of the whole
     /// cluster's: FPFH near the cut then describes the region as the model would see it
@@ -450,33 +484,46 @@ impl Recognizer {
     ) -> Result<std::result::Result<Isometry3<f64>, String>> {
         let p = &self.params;
         let t = Instant::now();
-        let initial = match ClusterFeatures::new(region, p, deadline)? {
-            Some(features) => initial_alignment(&self.model, &features, p, deadline)?,
+        let hypotheses = match ClusterFeatures::new(region, p, deadline)? {
+            Some(features) => initial_hypotheses(&self.model, &features, p, deadline)?,
             None => {
                 out.initial_ms += ms(t.elapsed());
                 return Ok(Err("fewer than 3 keypoints".into()));
             }
         };
         out.initial_ms += ms(t.elapsed());
-        let Some(initial) = initial else {
+        let Some(best) = hypotheses.first() else {
             return Ok(Err("no RANSAC consensus".into()));
         };
-        if initial.score >= p.initial_score_max {
+        if best.score >= p.initial_score_max {
             return Ok(Err(format!(
                 "initial score {:.1} >= {}",
-                initial.score, p.initial_score_max
+                best.score, p.initial_score_max
             )));
         }
-        deadline.check("final alignment")?;
-        let t = Instant::now();
-        let fin = final_alignment(&self.model, world, &initial.pose, p);
-        out.final_ms += ms(t.elapsed());
-        if fin.score >= p.final_score_max_pct {
+        // The best initial alignment (thesis 4.1 step 5), then, if it fails the final
+        // validation, the next distinct ones under the initial threshold.
+        let candidates = self.distinct_candidates(&hypotheses, p.effective_final_candidates());
+        let mut first_failure = None;
+        let mut accepted = None;
+        for initial in candidates {
+            deadline.check("final alignment")?;
+            let t = Instant::now();
+            let fin = final_alignment(&self.model, world, &initial.pose, p);
+            out.final_ms += ms(t.elapsed());
+            if fin.score < p.final_score_max_pct {
+                accepted = Some((initial, fin));
+                break;
+            }
+            first_failure.get_or_insert(fin.score);
+        }
+        let Some((initial, fin)) = accepted else {
             return Ok(Err(format!(
                 "final score {:.1} % >= {} %",
-                fin.score, p.final_score_max_pct
+                first_failure.unwrap_or(f64::NAN),
+                p.final_score_max_pct
             )));
-        }
+        };
         let up = Vector3::from(p.up).normalize();
         let c = centroid(&self.model.final_keypoints);
         let height_mm = (fin.pose * c).coords.dot(&up);

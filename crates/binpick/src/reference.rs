@@ -14,9 +14,9 @@
 //! | parallelism                  | rayon over clusters, radii, thresholds | OpenMP `parallel for` over clusters (4.4)  |
 //!
 //! It always runs the thesis exactly (one detection per cluster, no duplicate suppression):
-//! `thesis_strict`, `consensus_modes`, `symmetry_candidates` and `duplicate_overlap` are not
-//! consulted. `time_budget_ms` is checked once the call returns (the C++ loop cannot be
-//! interrupted). `threads` sets the OpenMP team of the cluster loop (0 = OpenMP's default);
+//! `thesis_strict`, `consensus_modes`, `symmetry_candidates`, `final_candidates` and
+//! `duplicate_overlap` are not consulted. `time_budget_ms` is checked once the call returns
+//! (the C++ loop cannot be interrupted). `threads` sets the OpenMP team of the cluster loop (0 = OpenMP's default);
 //! PCL's OpenMP estimators inside it keep their default thread count.
 
 use std::time::Instant;
@@ -32,12 +32,8 @@ use crate::error::{Error, Result, input, pcl};
 use crate::params::{Algorithm, FeatureSurface, Params};
 use crate::pose::from_mat4;
 use crate::rank::rank_detections;
-use crate::recognizer::{ClusterReport, Detection, Recognition, Timings};
+use crate::recognizer::{ClusterReport, Detection, Recognition, Timings, check_extent, ms};
 use crate::scene::{PreprocessReport, RemovedPlane};
-
-/// Extents outside these bounds mean the cloud is not in millimetres (as `Recognizer`).
-const MIN_EXTENT_RESOLUTIONS: f64 = 10.0;
-const MAX_EXTENT_MM: f64 = 100_000.0;
 
 /// Where the reference spent its time, ms. Stages inside the cluster loop add up the work of
 /// all OpenMP threads (the thesis's pie charts, 5.7).
@@ -149,48 +145,6 @@ pub fn reference_params(p: &Params) -> ReferenceParams {
         model_viewpoint: p.model_viewpoint_mm,
         threads: u32::try_from(p.threads).unwrap_or(u32::MAX),
     }
-}
-
-fn ms(d: std::time::Duration) -> f64 {
-    d.as_secs_f64() * 1000.0
-}
-
-/// The unit checks of `Recognizer::new` / `recognize`, with the same messages.
-fn check_extent(what: &'static str, cloud: &PointCloud, params: &Params) -> Result<()> {
-    if cloud.is_empty() {
-        return Err(input(what, "the cloud is empty"));
-    }
-    if let Some(i) = cloud.first_non_finite() {
-        return Err(input(
-            what,
-            format!("point {i} has a non-finite coordinate"),
-        ));
-    }
-    let extent = cloud
-        .bounds()
-        .map(|b| f64::from(b.diagonal()))
-        .unwrap_or(0.0);
-    let min = MIN_EXTENT_RESOLUTIONS * params.resolution_mm;
-    if extent < min {
-        return Err(input(
-            what,
-            format!(
-                "its extent is {extent:.4} mm, smaller than {MIN_EXTENT_RESOLUTIONS} x the {} mm resolution: \
-                 the cloud looks like it is in metres (binpick works in millimetres; use --units m or units = \"m\")",
-                params.resolution_mm
-            ),
-        ));
-    }
-    if extent > MAX_EXTENT_MM {
-        return Err(input(
-            what,
-            format!(
-                "its extent is {extent:.0} mm (> {} m): wrong units? binpick expects millimetres",
-                MAX_EXTENT_MM / 1000.0
-            ),
-        ));
-    }
-    Ok(())
 }
 
 fn centroid(points: &[Point]) -> Point3<f64> {
