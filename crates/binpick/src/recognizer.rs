@@ -134,12 +134,8 @@ const MIN_TOLERANCE_FACTOR: f64 = 1.1;
 const DISTINCT_SHIFT_DIAMETERS: f64 = 0.1;
 const DISTINCT_ANGLE_DEG: f64 = 15.0;
 
-/// Search spheres reach this many model radii from their centre, and their centres are
-/// uniform keypoints of the cluster at this many model radii apart. Spacing 1.5 against 1.0
-/// on the conveyor sets: A the same (59.6 %), B 71.0 -> 74.2 %, p95 time per scene 13.3 ->
-/// 5.6 s (A) and 12.7 -> 8.3 s (B): fewer, less overlapping spheres.
+/// Search spheres reach this many model radii from their centre.
 const SPHERE_RADIUS_FACTOR: f64 = 1.5;
-const SPHERE_SPACING_FACTOR: f64 = 1.5;
 
 /// Extents outside these bounds mean the cloud is not in millimetres.
 const MIN_EXTENT_RESOLUTIONS: f64 = 10.0;
@@ -551,15 +547,17 @@ impl Recognizer {
     }
 
     /// Overlapping spheres covering a big cluster (thesis 3.4.1.2), as point indices: centres
-    /// are uniform keypoints of the cluster at a leaf of 1.5 model radii (radius = centroid to
-    /// farthest point), each sphere keeps the cluster points within 1.5 model radii. Spheres
-    /// with fewer points than the smallest cluster are dropped.
+    /// are uniform keypoints of the cluster `sphere_spacing_factor` model radii apart (radius =
+    /// centroid to farthest point), each sphere keeps the cluster points within 1.5 model
+    /// radii. Spheres with fewer points than the smallest cluster are dropped.
     fn spheres(&self, points: &[Point]) -> Result<Vec<Vec<u32>>> {
         let radius = self.model.radius_mm;
         let (min_size, _) = self.cluster_size_range();
-        let centres =
-            binpick_pcl::uniform_sampling(points, (SPHERE_SPACING_FACTOR * radius) as f32)
-                .map_err(pcl("sphere centres"))?;
+        let centres = binpick_pcl::uniform_sampling(
+            points,
+            (self.params.sphere_spacing_factor * radius) as f32,
+        )
+        .map_err(pcl("sphere centres"))?;
         let index = NearestIndex::new(points).map_err(|e| input("cluster", e.to_string()))?;
         let mut out = Vec::new();
         for c in centres {
