@@ -190,34 +190,35 @@ pub fn run(a: Args) -> Result<()> {
     for scene_path in &a.scene {
         let scene = load(scene_path, params.units, "scene")?;
         let name = scene_path.display().to_string();
-        let row = |engine, warm: &Recognition, runs: &[Timings]| SceneBench {
-            scene: name.clone(),
-            engine,
-            points: scene.len(),
-            detections: warm.detections.len(),
-            runs: runs.len(),
-            median: medians(runs),
-        };
-        let rust = match a.engine {
-            BenchEngine::Rust | BenchEngine::Both => {
-                let (warm, runs) = time_runs(a.repeat, || recognizer.recognize(&scene))?;
-                let b = row("rust", &warm, &runs);
+        // Times one engine on this scene, prints and stores its row; (first result, median total).
+        let mut measure =
+            |engine: &'static str, timed: (Recognition, Vec<Timings>)| -> (Recognition, f64) {
+                let (warm, runs) = timed;
+                let b = SceneBench {
+                    scene: name.clone(),
+                    engine,
+                    points: scene.len(),
+                    detections: warm.detections.len(),
+                    runs: runs.len(),
+                    median: medians(&runs),
+                };
                 print_row(&b);
                 let total = b.median.total_ms;
                 out.scenes.push(b);
-                Some((warm, total))
-            }
+                (warm, total)
+            };
+        let rust = match a.engine {
+            BenchEngine::Rust | BenchEngine::Both => Some(measure(
+                "rust",
+                time_runs(a.repeat, || recognizer.recognize(&scene))?,
+            )),
             BenchEngine::Reference => None,
         };
         let reference = match a.engine {
-            BenchEngine::Reference | BenchEngine::Both => {
-                let (warm, runs) = time_reference(a.repeat, &model, &scene, &params)?;
-                let b = row("reference", &warm, &runs);
-                print_row(&b);
-                let total = b.median.total_ms;
-                out.scenes.push(b);
-                Some((warm, total))
-            }
+            BenchEngine::Reference | BenchEngine::Both => Some(measure(
+                "reference",
+                time_reference(a.repeat, &model, &scene, &params)?,
+            )),
             BenchEngine::Rust => None,
         };
         if let (Some((r, rust_ms)), Some((c, ref_ms))) = (rust, reference) {
