@@ -369,17 +369,17 @@ impl Recognizer {
         };
         let everything: Vec<u32> = (0..points.len() as u32).collect();
         let tolerance = p.cluster_tolerance_mm();
-        // (point indices into the cluster, clustering tolerance in mm or None for a sphere,
-        // which is never split further) still to search.
-        let mut queue: VecDeque<(Vec<u32>, Option<f64>)> = if !p.thesis_strict
+        // (point indices into the cluster, the clustering tolerance that made them, mm) still
+        // to search.
+        let mut queue: VecDeque<(Vec<u32>, f64)> = if !p.thesis_strict
             && points.len() as f64 > p.sphere_split_factor * self.model.cloud.len() as f64
         {
             self.spheres(&points)?
                 .into_iter()
-                .map(|r| (r, Some(tolerance)))
+                .map(|r| (r, tolerance))
                 .collect()
         } else {
-            VecDeque::from([(everything, Some(tolerance))])
+            VecDeque::from([(everything, tolerance)])
         };
         out.report.regions = queue.len();
         let mut last_reason = String::from("no candidate");
@@ -412,25 +412,21 @@ impl Recognizer {
                         continue;
                     }
                     if rest.len() >= min_size as usize {
-                        let t = tol.unwrap_or(tolerance);
                         queue.extend(
-                            self.recluster(&points, &rest, min_size, t)?
+                            self.recluster(&points, &rest, min_size, tol)?
                                 .into_iter()
-                                .map(|s| (s, Some(t))),
+                                .map(|s| (s, tol)),
                         );
                     }
                 }
                 Err(reason) => {
                     last_reason = reason;
-                    if let Some(tol) = tol {
-                        let tighter =
-                            (tol * TIGHTER_TOLERANCE).max(MIN_TOLERANCE_FACTOR * p.resolution_mm);
-                        if !p.thesis_strict && part.len() > self.model.cloud.len() && tighter < tol
-                        {
-                            let subs = self.recluster(&points, &part, min_size, tighter)?;
-                            if subs.len() > 1 {
-                                queue.extend(subs.into_iter().map(|s| (s, Some(tighter))));
-                            }
+                    let tighter =
+                        (tol * TIGHTER_TOLERANCE).max(MIN_TOLERANCE_FACTOR * p.resolution_mm);
+                    if !p.thesis_strict && part.len() > self.model.cloud.len() && tighter < tol {
+                        let subs = self.recluster(&points, &part, min_size, tighter)?;
+                        if subs.len() > 1 {
+                            queue.extend(subs.into_iter().map(|s| (s, tighter)));
                         }
                     }
                 }
