@@ -59,8 +59,44 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("binpick: error: {e:#}");
+            eprintln!("binpick: error: {}", chain_message(&e));
             ExitCode::FAILURE
         }
+    }
+}
+
+/// The error and its causes as "a: b: c", leaving out a cause whose text the message before
+/// it already ends with (binpick's error types print their source inline).
+fn chain_message(e: &anyhow::Error) -> String {
+    let mut out = String::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if out.ends_with(&text) {
+            continue;
+        }
+        if !out.is_empty() {
+            out.push_str(": ");
+        }
+        out.push_str(&text);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::chain_message;
+
+    #[test]
+    fn causes_printed_inline_are_not_repeated() {
+        let io = std::io::Error::new(std::io::ErrorKind::NotFound, "no such file");
+        let e = anyhow::Error::new(io)
+            .context("x.pcd: no such file")
+            .context("cannot load the model");
+        assert_eq!(
+            chain_message(&e),
+            "cannot load the model: x.pcd: no such file"
+        );
+        let plain = anyhow::anyhow!("inner").context("outer");
+        assert_eq!(chain_message(&plain), "outer: inner");
     }
 }
