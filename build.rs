@@ -67,34 +67,30 @@ fn main() {
     include_dirs.retain(|d| d != Path::new("/usr/include"));
 
     let mut build = cxx_build::bridge("src/ffi.rs");
-    build
-        .files(SOURCES)
-        .include(Path::new("cpp/include"))
-        .std("c++17")
-        // PCL and Eigen headers are noisy; our own code is still compiled with -Wall.
-        .flag("-Wall")
-        .flag_if_supported("-Wno-deprecated-declarations")
-        // GCC 12 false positive inside Eigen (inlined aligned_free), not in our code.
-        .flag_if_supported("-Wno-use-after-free");
-    for dir in &include_dirs {
-        build.flag(format!("-isystem{}", dir.display()));
-    }
+    configure(&mut build, SOURCES, &include_dirs);
     build.compile("binpick_pcl_bridge");
 
     // No bridge of its own (the functions are declared in src/ffi.rs): this only sets up the
     // include paths of the generated header.
     let mut reference = cxx_build::bridges(std::iter::empty::<&str>());
-    reference
-        .files(REFERENCE_SOURCES)
+    configure(&mut reference, REFERENCE_SOURCES, &include_dirs);
+    reference.flag("-fopenmp");
+    reference.compile("binpick_pcl_reference");
+    println!("cargo:rustc-link-lib=gomp");
+}
+
+/// Sources and flags common to both libraries. PCL and Eigen headers are noisy, so they are
+/// system includes; our own code is still compiled with -Wall.
+fn configure(build: &mut cc::Build, sources: &[&str], include_dirs: &[std::path::PathBuf]) {
+    build
+        .files(sources)
         .include(Path::new("cpp/include"))
         .std("c++17")
         .flag("-Wall")
-        .flag("-fopenmp")
         .flag_if_supported("-Wno-deprecated-declarations")
+        // GCC 12 false positive inside Eigen (inlined aligned_free), not in our code.
         .flag_if_supported("-Wno-use-after-free");
-    for dir in &include_dirs {
-        reference.flag(format!("-isystem{}", dir.display()));
+    for dir in include_dirs {
+        build.flag(format!("-isystem{}", dir.display()));
     }
-    reference.compile("binpick_pcl_reference");
-    println!("cargo:rustc-link-lib=gomp");
 }

@@ -10,6 +10,7 @@
 #include <sstream>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 #include "binpick_pcl.h"
 
@@ -56,5 +57,13 @@ pcl::search::KdTree<pcl::PointXYZ>::Ptr make_tree(const PointCloudXYZ::Ptr& clou
 void check_grid(const PointCloudXYZ& cloud, float leaf, const char* what);
 
 void check_positive(double value, const char* name);
+
+// pcl::UniformSampling at `leaf` (filters.cpp): the input indices of the kept points, ascending.
+// Shared by the bridge's uniform_sampling and the reference pipeline.
+std::vector<std::uint32_t> uniform_sampling_indices(const PointCloudXYZ::Ptr& cloud, float leaf);
+
+// pcl::VoxelGrid at `leaf` (filters.cpp): one centroid per occupied cell. `what` names the
+// caller in errors.
+PointCloudXYZ voxel_grid_points(const PointCloudXYZ::Ptr& cloud, float leaf, const char* what);
 
 }  // namespace binpick

@@ -110,42 +110,15 @@ PointCloudXYZ::Ptr subset(const PointCloudXYZ& in, const std::vector<Index>& idx
   return out;
 }
 
+// Keypoints (thesis 3.2.3) come from uniform_sampling_indices (internal.h), the bridge's own
+// pcl::UniformSampling wrapper, so both engines keep the same points in the same order.
+
 // pcl::VoxelGrid at `leaf` (thesis 4.3 #1): one centroid per occupied cell.
 PointCloudXYZ::Ptr voxel_grid(const PointCloudXYZ::Ptr& cloud, float leaf, const char* what) {
-  check_grid(*cloud, leaf, what);
-  pcl::VoxelGrid<pcl::PointXYZ> vg;
-  vg.setInputCloud(cloud);
-  vg.setLeafSize(leaf, leaf, leaf);
-  PointCloudXYZ filtered;
-  vg.filter(filtered);
+  const PointCloudXYZ filtered = voxel_grid_points(cloud, leaf, what);
   PointCloudXYZ::Ptr out(new PointCloudXYZ);
   out->points.assign(filtered.points.begin(), filtered.points.end());
   finish(*out);
-  return out;
-}
-
-// pcl::UniformSampling keypoints (thesis 3.2.3): in every leaf cell the input point closest to
-// the cell centre. Returned as the input indices of the kept points, ascending (PCL emits
-// them in hash-map order), exactly as the bridge's uniform_sampling.
-std::vector<std::uint32_t> uniform_keypoints(const PointCloudXYZ::Ptr& cloud, float leaf) {
-  check_grid(*cloud, leaf, "uniform_sampling");
-  pcl::UniformSampling<pcl::PointXYZ> us(/*extract_removed_indices=*/true);
-  us.setInputCloud(cloud);
-  us.setRadiusSearch(leaf);
-  PointCloudXYZ kept;
-  us.filter(kept);
-  std::vector<bool> removed(cloud->size(), false);
-  for (auto i : *us.getRemovedIndices()) removed[static_cast<std::size_t>(i)] = true;
-  std::vector<std::uint32_t> out;
-  out.reserve(kept.size());
-  for (std::size_t i = 0; i < cloud->size(); ++i) {
-    if (!removed[i]) out.push_back(static_cast<std::uint32_t>(i));
-  }
-  if (out.size() != kept.size()) {
-    throw std::runtime_error("uniform_sampling: PCL kept " + std::to_string(kept.size()) +
-                             " points but removed-index bookkeeping leaves " +
-                             std::to_string(out.size()));
-  }
   return out;
 }
 
@@ -508,7 +481,7 @@ struct ModelFeatures {
 
 ModelFeatures model_features(const PointCloudXYZ::Ptr& model, const ReferenceParams& p) {
   ModelFeatures m;
-  const auto idx = uniform_keypoints(model, static_cast<float>(p.initial_leaf));
+  const auto idx = uniform_sampling_indices(model, static_cast<float>(p.initial_leaf));
   if (idx.size() < 3) {
     fail("model: ", idx.size(), " keypoints at the ", p.initial_leaf,
          " mm initial leaf; at least 3 are needed");
@@ -612,13 +585,13 @@ Initial initial_alignment(const PointCloudXYZ::Ptr& model, const PointCloudXYZ::
   // (a) uniform keypoints on the world cluster and on the object (recomputed here, as the
   // thesis does for every cluster).
   auto t0 = Clock::now();
-  const auto idx = uniform_keypoints(cluster, static_cast<float>(p.initial_leaf));
+  const auto idx = uniform_sampling_indices(cluster, static_cast<float>(p.initial_leaf));
   t.keypoints += ms_since(t0);
   if (idx.size() < 3) return best;
   const KeypointSet cl = keypoint_set(cluster, idx, p.feature_surface_cloud);
 
   t0 = Clock::now();
-  const auto m_idx = uniform_keypoints(model, static_cast<float>(p.initial_leaf));
+  const auto m_idx = uniform_sampling_indices(model, static_cast<float>(p.initial_leaf));
   if (m_idx.size() < 3) fail("model: ", m_idx.size(), " keypoints at the initial leaf");
   const KeypointSet mk = keypoint_set(model, m_idx, p.feature_surface_cloud);
   t.model_features += ms_since(t0);
@@ -836,7 +809,7 @@ ReferenceResult reference_recognize(rust::Slice<const float> model_xyz,
       }
     }
   }
-  const auto model_final = subset(*model, uniform_keypoints(model, static_cast<float>(p.final_leaf)));
+  const auto model_final = subset(*model, uniform_sampling_indices(model, static_cast<float>(p.final_leaf)));
   for (const auto& q : model_final->points) {
     out.model_final_keypoints.push_back(q.x);
     out.model_final_keypoints.push_back(q.y);
@@ -895,7 +868,7 @@ ReferenceResult reference_recognize(rust::Slice<const float> model_xyz,
     clusters.emplace_back();
     for (auto i : f.indices) clusters.back().push_back(static_cast<std::uint32_t>(i));
   }
-  const auto world_final = subset(*world, uniform_keypoints(world, static_cast<float>(p.final_leaf)));
+  const auto world_final = subset(*world, uniform_sampling_indices(world, static_cast<float>(p.final_leaf)));
   out.timings.clustering_ms = ms_since(t0);
 
   // --- For each cluster, in parallel (4.4): initial then final alignment ---------------
