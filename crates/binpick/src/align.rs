@@ -42,12 +42,10 @@ struct Hypothesis {
     alignment: InitialAlignment,
 }
 
-/// A cluster's uniform keypoints and their FPFH descriptors for every radius (thesis 4.1 step
-/// 1a-b), computed once per cluster and shared by every search inside it.
+/// The uniform keypoints of a cluster (or of a sphere, remainder or split of one) and their
+/// FPFH descriptors for every radius (thesis 4.1 step 1a-b).
 #[derive(Clone, Debug)]
 pub struct ClusterFeatures {
-    /// Keypoint indices into the cluster's points, ascending.
-    pub keypoint_idx: Vec<u32>,
     pub keypoints: Vec<Point>,
     /// One entry per radius of `Params::fpfh_radii_mm`, keypoint indices into `keypoints`.
     pub features: Vec<RadiusFeatures>,
@@ -84,7 +82,6 @@ impl ClusterFeatures {
             })
             .collect::<Result<_>>()?;
         Ok(Some(Self {
-            keypoint_idx,
             keypoints,
             features,
         }))
