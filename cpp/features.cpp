@@ -23,7 +23,7 @@ Eigen::Vector3f read_viewpoint(rust::Slice<const float> viewpoint) {
 // pcl::NormalEstimationOMP over `cloud`, searching `tree` (built on `cloud`), flipped towards
 // the sensor viewpoint so the model and the scene orient normals the same way.
 Normals::Ptr normals_for(const PointCloudXYZ::Ptr& cloud,
-                         const pcl::search::KdTree<pcl::PointXYZ>::Ptr& tree, float radius,
+                         const pcl::search::Search<pcl::PointXYZ>::Ptr& tree, float radius,
                          const Eigen::Vector3f& vp, std::uint32_t threads) {
   pcl::NormalEstimationOMP<pcl::PointXYZ, pcl::Normal> ne(threads);
   ne.setInputCloud(cloud);
@@ -60,7 +60,8 @@ rust::Vec<float> estimate_normals(rust::Slice<const float> xyz, float radius,
 // FPFH (pcl::FPFHEstimationOMP) at `keypoints` (indices into `surface`), with the whole
 // surface as search surface: normals are estimated on the surface at `normal_radius`
 // (thesis: 0.8 x feature radius), then the descriptor at `feature_radius`. The surface's
-// kd-tree, built once on upload, serves both estimators. A keypoint whose descriptor is
+// kd-tree, built once on upload, serves both estimators (through its neighbourhood cache when
+// the upload built one that covers the radius). A keypoint whose descriptor is
 // undefined (no neighbours, or an undefined normal) is marked invalid instead of carrying
 // NaNs into the feature kd-tree.
 Features cloud_fpfh(const Cloud& surface, rust::Slice<const std::uint32_t> keypoints,
@@ -73,13 +74,14 @@ Features cloud_fpfh(const Cloud& surface, rust::Slice<const std::uint32_t> keypo
   auto indices = std::make_shared<pcl::Indices>(to_indices(keypoints, s.points->size(), "keypoints"));
   if (indices->empty()) fail("cloud_fpfh: no keypoints");
 
-  const auto normals = normals_for(s.points, s.tree, normal_radius, vp, threads);
+  const auto normals =
+      normals_for(s.points, radius_search_method(s, normal_radius), normal_radius, vp, threads);
 
   pcl::FPFHEstimationOMP<pcl::PointXYZ, pcl::Normal, pcl::FPFHSignature33> fpfh(threads);
   fpfh.setInputCloud(s.points);
   fpfh.setIndices(indices);
   fpfh.setInputNormals(normals);
-  fpfh.setSearchMethod(s.tree);
+  fpfh.setSearchMethod(radius_search_method(s, feature_radius));
   fpfh.setRadiusSearch(feature_radius);
   pcl::PointCloud<pcl::FPFHSignature33> descriptors;
   fpfh.compute(descriptors);

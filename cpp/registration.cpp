@@ -3,10 +3,15 @@
 #include <pcl/registration/correspondence_rejection_sample_consensus.h>
 #include <pcl/registration/icp.h>
 #include <pcl/registration/transformation_estimation_svd.h>
+#include <pcl/sample_consensus/ransac.h>
+#include <pcl/sample_consensus/sac_model_registration.h>
 
 #include <flann/flann.hpp>
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
+#include <unordered_map>
 
 #include "binpick-pcl/src/ffi.rs.h"
 #include "internal.h"
@@ -200,6 +205,143 @@ SacResult reject_sample_consensus(rust::Slice<const float> source_xyz,
       out.kept.push_back(Correspondence{static_cast<std::uint32_t>(c.index_query),
                                         static_cast<std::uint32_t>(c.index_match), c.distance});
     }
+  }
+  return out;
+}
+
+namespace {
+
+// PCL's registration model, exposing the squared residuals its selectWithinDistance computed
+// (a protected member in PCL), so one pass over the correspondences serves every threshold.
+class SweepModel : public pcl::SampleConsensusModelRegistration<pcl::PointXYZ> {
+ public:
+  using pcl::SampleConsensusModelRegistration<pcl::PointXYZ>::SampleConsensusModelRegistration;
+  const std::vector<double>& last_sqr_residuals() const { return error_sqr_dists_; }
+};
+
+SacResult sac_result(const pcl::Correspondences& corrs, const pcl::Indices& inliers,
+                     const Eigen::VectorXf& coefficients) {
+  SacResult out;
+  out.converged = inliers.size() >= 3;
+  Eigen::Matrix4f t = Eigen::Matrix4f::Identity();
+  if (out.converged) {
+    // As CorrespondenceRejectorSampleConsensus::getRemainingCorrespondences.
+    std::unordered_map<int, int> index_to_correspondence;
+    for (int i = 0; i < static_cast<int>(corrs.size()); ++i)
+      index_to_correspondence[corrs[i].index_query] = i;
+    for (const auto& inlier : inliers) {
+      const auto& c = corrs[index_to_correspondence[inlier]];
+      out.kept.push_back(Correspondence{static_cast<std::uint32_t>(c.index_query),
+                                        static_cast<std::uint32_t>(c.index_match), c.distance});
+    }
+    for (int r = 0; r < 4; ++r) t.row(r) = coefficients.segment<4>(4 * r);
+  }
+  to_row_major(t, out.transform);
+  out.rotation_det = static_cast<double>(t.topLeftCorner<3, 3>().determinant());
+  return out;
+}
+
+}  // namespace
+
+// The thesis's threshold sweep (Algorithm 1 step iii): CorrespondenceRejectorSampleConsensus
+// run once per threshold on the same correspondences, with the same answers, in one pass.
+// Every rejector run builds a fresh SampleConsensusModelRegistration seeded with 12345, so all
+// runs draw the same samples and fit the same candidate transforms; they differ only in which
+// candidates they count as better and when their adaptive iteration bound stops them. This
+// replays pcl::RandomSampleConsensus::computeModel (ransac.hpp, PCL 1.13) for every threshold
+// at once: one draw and one PCL model fit per iteration, one residual pass at the largest
+// threshold (PCL's own selectWithinDistance), then each still-running threshold counts its
+// inliers from those residuals exactly as countWithinDistance compares them. The bridge test
+// `sweep_matches_one_rejector_per_threshold` checks the results are identical.
+rust::Vec<SacResult> reject_sample_consensus_sweep(rust::Slice<const float> source_xyz,
+                                                   rust::Slice<const float> target_xyz,
+                                                   rust::Slice<const Correspondence> correspondences,
+                                                   rust::Slice<const float> inlier_thresholds,
+                                                   std::uint32_t max_iterations) {
+  if (inlier_thresholds.empty()) fail("SAC sweep needs at least one threshold");
+  for (float t : inlier_thresholds) check_positive(t, "SAC inlier threshold");
+  if (max_iterations == 0) fail("SAC rejector needs at least one iteration");
+  if (max_iterations > static_cast<std::uint32_t>(std::numeric_limits<int>::max() / 10)) {
+    fail("SAC rejector: ", max_iterations, " iterations is too many");
+  }
+  const auto src = to_cloud(source_xyz, "SAC source");
+  const auto tgt = to_cloud(target_xyz, "SAC target");
+  const auto corrs = to_pcl(correspondences, src->size(), tgt->size());
+  if (corrs.size() < 3) fail("SAC rejector needs at least 3 correspondences, got ", corrs.size());
+
+  pcl::Indices source_indices(corrs.size()), target_indices(corrs.size());
+  for (std::size_t i = 0; i < corrs.size(); ++i) {
+    source_indices[i] = corrs[i].index_query;
+    target_indices[i] = corrs[i].index_match;
+  }
+  auto model = std::make_shared<SweepModel>(src, source_indices);
+  model->setInputTarget(tgt, target_indices);
+
+  // One run per threshold; the threshold is a double holding the float, as the rejector's.
+  struct Run {
+    double threshold = 0.0, sqr_threshold = 0.0;
+    bool running = true;
+    std::size_t best_count = 0;
+    double k = std::numeric_limits<double>::max();
+    Eigen::VectorXf coefficients;
+  };
+  std::vector<Run> runs;
+  double widest = 0.0;
+  for (float t : inlier_thresholds) {
+    const double th = t;
+    Run run;
+    run.threshold = th;
+    run.sqr_threshold = th * th;
+    runs.push_back(std::move(run));
+    widest = std::max(widest, th);
+  }
+  const double probability = pcl::RandomSampleConsensus<pcl::PointXYZ>(model).getProbability();
+  const double log_probability = std::log(1.0 - probability);
+  const double one_over_indices = 1.0 / static_cast<double>(model->getIndices()->size());
+  const int max_iter = static_cast<int>(max_iterations);
+  const unsigned max_skip = max_iterations * 10;
+  unsigned skipped = 0;
+  int iterations = 0;
+  pcl::Indices selection, within;
+  Eigen::VectorXf coefficients(model->getModelSize());
+
+  auto running = [&runs] {
+    return std::any_of(runs.begin(), runs.end(), [](const Run& r) { return r.running; });
+  };
+  while (running()) {
+    model->getSamples(iterations, selection);
+    if (selection.empty()) break;
+    if (!model->computeModelCoefficients(selection, coefficients)) {
+      if (++skipped < max_skip) continue;
+      break;
+    }
+    model->selectWithinDistance(coefficients, widest, within);
+    const auto& residuals = model->last_sqr_residuals();
+    ++iterations;
+    for (auto& run : runs) {
+      if (!run.running) continue;
+      const auto count = static_cast<std::size_t>(
+          std::count_if(residuals.begin(), residuals.end(),
+                        [&run](double d) { return d < run.sqr_threshold; }));
+      if (count > run.best_count) {
+        run.best_count = count;
+        run.coefficients = coefficients;
+        const double w = static_cast<double>(count) * one_over_indices;
+        double p_outliers = 1.0 - std::pow(w, static_cast<double>(selection.size()));
+        p_outliers = std::max(std::numeric_limits<double>::epsilon(), p_outliers);
+        p_outliers = std::min(1.0 - std::numeric_limits<double>::epsilon(), p_outliers);
+        run.k = log_probability / std::log(p_outliers);
+      }
+      if (iterations > run.k || iterations > max_iter) run.running = false;
+    }
+  }
+
+  rust::Vec<SacResult> out;
+  pcl::Indices inliers;
+  for (const auto& run : runs) {
+    inliers.clear();
+    if (run.best_count > 0) model->selectWithinDistance(run.coefficients, run.threshold, inliers);
+    out.push_back(sac_result(corrs, inliers, run.coefficients));
   }
   return out;
 }

@@ -196,7 +196,9 @@ pub(crate) mod bridge {
 
         fn set_pcl_verbosity(level: i32) -> Result<()>;
         fn upload_cloud(xyz: &[f32]) -> Result<UniquePtr<Cloud>>;
+        fn upload_cloud_with_neighbourhoods(xyz: &[f32], radius: f32) -> Result<UniquePtr<Cloud>>;
         fn cloud_len(cloud: &Cloud) -> usize;
+        fn cloud_neighbourhood_radius(cloud: &Cloud) -> f64;
         fn nearest_sq_distances(cloud: &Cloud, query_xyz: &[f32]) -> Result<Vec<f32>>;
 
         fn uniform_sampling(xyz: &[f32], leaf: f32) -> Result<Vec<u32>>;
@@ -240,6 +242,13 @@ pub(crate) mod bridge {
             inlier_threshold: f32,
             max_iterations: u32,
         ) -> Result<SacResult>;
+        fn reject_sample_consensus_sweep(
+            source_xyz: &[f32],
+            target_xyz: &[f32],
+            correspondences: &[Correspondence],
+            inlier_thresholds: &[f32],
+            max_iterations: u32,
+        ) -> Result<Vec<SacResult>>;
         fn estimate_svd(
             source_xyz: &[f32],
             target_xyz: &[f32],

@@ -203,7 +203,6 @@ pub fn reject_sample_consensus(
     inlier_threshold: f32,
     max_iterations: u32,
 ) -> Result<Consensus> {
-    const CALL: &str = "CorrespondenceRejectorSampleConsensus";
     init();
     let r = bridge::reject_sample_consensus(
         flat(source),
@@ -212,16 +211,49 @@ pub fn reject_sample_consensus(
         inlier_threshold,
         max_iterations,
     )
-    .map_err(pcl_err(CALL))?;
+    .map_err(pcl_err(SAC_CALL))?;
+    consensus(r, correspondences.len())
+}
+
+/// [`reject_sample_consensus`] once per threshold of `inlier_thresholds` on the same
+/// correspondences, with the same answers, in one pass: PCL seeds every rejector run alike, so
+/// the runs of a threshold sweep draw the same samples and fit the same candidate transforms.
+/// The C++ side replays `pcl::RandomSampleConsensus` for all thresholds at once with PCL's
+/// registration model. One result per threshold, in order.
+pub fn reject_sample_consensus_sweep(
+    source: &[Point],
+    target: &[Point],
+    correspondences: &[Correspondence],
+    inlier_thresholds: &[f32],
+    max_iterations: u32,
+) -> Result<Vec<Result<Consensus>>> {
+    init();
+    let runs = bridge::reject_sample_consensus_sweep(
+        flat(source),
+        flat(target),
+        correspondences,
+        inlier_thresholds,
+        max_iterations,
+    )
+    .map_err(pcl_err(SAC_CALL))?;
+    Ok(runs
+        .into_iter()
+        .map(|r| consensus(r, correspondences.len()))
+        .collect())
+}
+
+const SAC_CALL: &str = "CorrespondenceRejectorSampleConsensus";
+
+fn consensus(r: bridge::SacResult, correspondences: usize) -> Result<Consensus> {
     if !r.converged {
         return Err(Error::NoConsensus {
-            call: CALL,
-            correspondences: correspondences.len(),
+            call: SAC_CALL,
+            correspondences,
         });
     }
     if (r.rotation_det - 1.0).abs() > DET_TOLERANCE {
         return Err(Error::ImproperRotation {
-            call: CALL,
+            call: SAC_CALL,
             det: r.rotation_det,
         });
     }
@@ -347,6 +379,18 @@ impl IndexedCloud {
         Ok(Self { inner, len })
     }
 
+    /// [`IndexedCloud::new`], and every point's neighbours within `radius` found once, so
+    /// normals and FPFH ([`IndexedCloud::fpfh`]) at any radius up to it reuse them instead of
+    /// searching the kd-tree again per radius and per pass. Same answers as without; a cloud
+    /// so dense that the lists would exceed 16 Mi neighbours is searched without them.
+    pub fn with_neighbourhoods(points: &[Point], radius: f32) -> Result<Self> {
+        init();
+        let inner = bridge::upload_cloud_with_neighbourhoods(flat(points), radius)
+            .map_err(pcl_err("upload"))?;
+        let len = bridge::cloud_len(&inner);
+        Ok(Self { inner, len })
+    }
+
     fn cloud(&self) -> &bridge::Cloud {
         // `new` is the only constructor and `upload_cloud` never returns null on success.
         self.inner
@@ -356,6 +400,13 @@ impl IndexedCloud {
 
     pub fn len(&self) -> usize {
         self.len
+    }
+
+    /// The radius up to which neighbourhoods are cached ([`IndexedCloud::with_neighbourhoods`]),
+    /// `None` when they are not.
+    pub fn neighbourhood_radius(&self) -> Option<f64> {
+        let r = bridge::cloud_neighbourhood_radius(self.cloud());
+        (r > 0.0).then_some(r)
     }
 
     pub fn is_empty(&self) -> bool {

@@ -4,8 +4,8 @@
 
 use binpick_pcl::{
     Correspondence, Error, FpfhParams, IcpParams, IndexedCloud, Mat4, Point, estimate_normals,
-    estimate_svd, match_features, reject_sample_consensus, segment_plane, uniform_sampling,
-    voxel_grid,
+    estimate_svd, match_features, reject_sample_consensus, reject_sample_consensus_sweep,
+    segment_plane, uniform_sampling, voxel_grid,
 };
 use nalgebra::{Isometry3, Matrix4, Point3, Translation3, UnitQuaternion, Vector3};
 
@@ -173,6 +173,59 @@ fn l1(a: &[f32; 33], b: &[f32; 33]) -> f32 {
     a.iter().zip(b).map(|(x, y)| (x - y).abs()).sum()
 }
 
+/// Normals and FPFH searched through the neighbourhood cache must equal those searched
+/// through the kd-tree, bit for bit: at radii below, at and above the cached radius, with the
+/// keypoints as surface and with a denser surface around them, on one and two threads.
+#[test]
+fn cached_neighbourhoods_give_the_kd_tree_fpfh() {
+    let mut rng = Rng(0x1234_5678_9abc_def1);
+    let surface: Vec<Point> = bracket()
+        .into_iter()
+        .map(|p| p.map(|v| v + (rng.next() - 0.5) * 0.6))
+        .collect();
+    let keypoints = uniform_sampling(&surface, 3.0).unwrap();
+    let kp_points: Vec<Point> = keypoints.iter().map(|&i| surface[i as usize]).collect();
+    let all: Vec<u32> = (0..kp_points.len() as u32).collect();
+    let bits = |set: &binpick_pcl::FpfhSet| {
+        (
+            set.valid.clone(),
+            set.descriptors
+                .iter()
+                .map(|d| d.map(f32::to_bits))
+                .collect::<Vec<_>>(),
+        )
+    };
+    let mut cached_radii = 0;
+    for (points, idx) in [(&surface, &keypoints), (&kp_points, &all)] {
+        let plain = IndexedCloud::new(points).unwrap();
+        let cached = IndexedCloud::with_neighbourhoods(points, 10.0).unwrap();
+        assert_eq!(plain.neighbourhood_radius(), None);
+        assert_eq!(cached.neighbourhood_radius(), Some(10.0));
+        for radius in [3.0f32, 5.5, 8.5, 10.0, 12.0] {
+            for threads in [1, 2] {
+                let fp = FpfhParams {
+                    feature_radius: radius,
+                    normal_radius: 0.8 * radius,
+                    viewpoint: [30.0, 20.0, 500.0],
+                    threads,
+                };
+                let want = plain.fpfh(idx, &fp).unwrap();
+                assert!(want.valid.iter().filter(|&&v| v).count() > idx.len() / 2);
+                assert_eq!(
+                    bits(&cached.fpfh(idx, &fp).unwrap()),
+                    bits(&want),
+                    "radius {radius}, {threads} thread(s), {} surface points",
+                    points.len()
+                );
+                cached_radii += usize::from(radius <= 10.0);
+            }
+        }
+    }
+    assert_eq!(cached_radii, 16);
+    assert!(IndexedCloud::with_neighbourhoods(&surface, 0.0).is_err());
+    assert!(IndexedCloud::with_neighbourhoods(&surface, f32::NAN).is_err());
+}
+
 #[test]
 fn fpfh_is_invariant_to_rigid_motion_and_separates_shapes() {
     let shape = bracket();
@@ -294,6 +347,77 @@ fn sac_rejector_keeps_planted_inliers_and_drops_outliers() {
     let svd = estimate_svd(&source, &target, &out.kept).unwrap();
     let (rot, trans) = pose_error(&svd, &truth);
     assert!(rot < 0.01 && trans < 0.01, "SVD: {rot} deg, {trans} mm");
+}
+
+/// The one-pass threshold sweep must give, for every threshold, exactly what one PCL
+/// rejector run at that threshold gives: same kept pairs in the same order, same transform,
+/// same failures. Inputs vary the outlier share (so PCL's adaptive iteration bound stops the
+/// thresholds at different iterations), the noise and the iteration cap.
+#[test]
+fn sweep_matches_one_rejector_per_threshold() {
+    let thresholds = [1e-4f32, 0.3, 1.0, 2.0, 5.0, 20.0];
+    let mut outcomes = std::collections::HashSet::new();
+    let mut failures = 0;
+    for (case, &(inlier_share, noise, iterations)) in [
+        (0.9f32, 0.2f32, 50u32),
+        (0.5, 0.5, 50),
+        (0.2, 0.5, 300),
+        (0.7, 1.5, 5),
+        (0.05, 0.1, 100),
+    ]
+    .iter()
+    .enumerate()
+    {
+        let mut rng = Rng(0x2545_f491_4f6c_dd1d ^ case as u64);
+        let source: Vec<Point> = (0..150)
+            .map(|_| [rng.next() * 80.0, rng.next() * 80.0, rng.next() * 80.0])
+            .collect();
+        let truth = iso([0.4, -0.2, 1.0], 60.0, [5.0, -12.0, 30.0]);
+        let target: Vec<Point> = apply(&truth, &source)
+            .into_iter()
+            .map(|p| p.map(|v| v + (rng.next() - 0.5) * 2.0 * noise))
+            .collect();
+        let corrs: Vec<Correspondence> = (0..150u32)
+            .map(|i| Correspondence {
+                query: i,
+                matched: if rng.next() < inlier_share {
+                    i
+                } else {
+                    (rng.next() * 150.0) as u32 % 150
+                },
+                distance: rng.next(),
+            })
+            .collect();
+        let sweep =
+            reject_sample_consensus_sweep(&source, &target, &corrs, &thresholds, iterations)
+                .unwrap();
+        assert_eq!(sweep.len(), thresholds.len());
+        for (t, swept) in thresholds.iter().zip(&sweep) {
+            let single = reject_sample_consensus(&source, &target, &corrs, *t, iterations);
+            assert_eq!(swept, &single, "case {case}, threshold {t}");
+            match single {
+                Ok(c) => {
+                    outcomes.insert(c.kept.len());
+                }
+                Err(_) => failures += 1,
+            }
+        }
+    }
+    // The comparison covered failures and many different consensus sizes.
+    assert!(failures > 0);
+    assert!(outcomes.len() > 10, "{outcomes:?}");
+
+    let pts = bracket();
+    let c = |q, m| Correspondence {
+        query: q,
+        matched: m,
+        distance: 0.0,
+    };
+    let three = [c(0, 0), c(1, 1), c(2, 2)];
+    assert!(reject_sample_consensus_sweep(&pts, &pts, &three, &[], 50).is_err());
+    assert!(reject_sample_consensus_sweep(&pts, &pts, &three, &[1.0, f32::NAN], 50).is_err());
+    assert!(reject_sample_consensus_sweep(&pts, &pts, &three, &[1.0], 0).is_err());
+    assert!(reject_sample_consensus_sweep(&pts, &pts, &three[..2], &[1.0], 50).is_err());
 }
 
 #[test]

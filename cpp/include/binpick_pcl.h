@@ -45,7 +45,10 @@ class Cloud {
 // --- common.cpp --------------------------------------------------------------------------
 void set_pcl_verbosity(std::int32_t level);
 std::unique_ptr<Cloud> upload_cloud(rust::Slice<const float> xyz);
+std::unique_ptr<Cloud> upload_cloud_with_neighbourhoods(rust::Slice<const float> xyz,
+                                                        float radius);
 std::size_t cloud_len(const Cloud& cloud);
+double cloud_neighbourhood_radius(const Cloud& cloud);
 rust::Vec<float> nearest_sq_distances(const Cloud& cloud, rust::Slice<const float> query_xyz);
 
 // --- filters.cpp (pcl_filters) -----------------------------------------------------------
@@ -72,6 +75,11 @@ SacResult reject_sample_consensus(rust::Slice<const float> source_xyz,
                                   rust::Slice<const float> target_xyz,
                                   rust::Slice<const Correspondence> correspondences,
                                   float inlier_threshold, std::uint32_t max_iterations);
+rust::Vec<SacResult> reject_sample_consensus_sweep(rust::Slice<const float> source_xyz,
+                                                   rust::Slice<const float> target_xyz,
+                                                   rust::Slice<const Correspondence> correspondences,
+                                                   rust::Slice<const float> inlier_thresholds,
+                                                   std::uint32_t max_iterations);
 Transform estimate_svd(rust::Slice<const float> source_xyz, rust::Slice<const float> target_xyz,
                        rust::Slice<const Correspondence> correspondences);
 IcpResult icp_align(const Cloud& target, rust::Slice<const float> source_xyz,

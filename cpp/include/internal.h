@@ -21,13 +21,26 @@ using PointCloudXYZ = pcl::PointCloud<pcl::PointXYZ>;
 // A FLANN index answering many nearest-neighbour queries in one call (registration.cpp).
 struct BatchIndex;
 
+// Every point's neighbours within a fixed radius, found once with the cloud's kd-tree and
+// served to PCL's estimators at any radius up to it (common.cpp).
+class CachedNeighbourhoods;
+
 struct Cloud::Impl {
   PointCloudXYZ::Ptr points;
   pcl::search::KdTree<pcl::PointXYZ>::Ptr tree;
+  // Optional (upload_cloud_with_neighbourhoods): the search method for radius searches of
+  // the cloud's own points up to `neighbourhood_radius`; null when not cached.
+  std::shared_ptr<const CachedNeighbourhoods> neighbourhoods;
+  double neighbourhood_radius = 0.0;
   // Built on first use by ICP (std::call_once keeps a shared Cloud thread-safe).
   mutable std::once_flag batch_once;
   mutable std::shared_ptr<const BatchIndex> batch;
 };
+
+// The search method for radius searches of the cloud's own points within `radius`: the
+// neighbourhood cache when it covers the radius, else the kd-tree. Same answers either way.
+pcl::search::Search<pcl::PointXYZ>::Ptr radius_search_method(const Cloud::Impl& cloud,
+                                                             double radius);
 
 // The cloud's batch index, built on first call.
 const BatchIndex& batch_index(const Cloud::Impl& cloud);

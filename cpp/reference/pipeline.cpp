@@ -17,9 +17,8 @@
 //   * ICP uses PCL's default correspondence estimation (one kd-tree query per point).
 //
 // Everything binpick adds to the thesis for determinism (sorted uniform keypoints, clusters
-// ordered by first index, the per-(radius, threshold) permutation of the correspondences
-// before RANSAC, support-plane removal, the Euclidean tie-break when ICP leaves the percent of
-// outliers unchanged) is reproduced exactly so the answers can be compared. Every failure is
+// ordered by first index, support-plane removal, the Euclidean tie-break when ICP leaves the
+// percent of outliers unchanged) is reproduced exactly so the answers can be compared. Every failure is
 // an exception, which cxx turns into a Rust error; nothing escapes the OpenMP region.
 #include <omp.h>
 
@@ -242,26 +241,6 @@ pcl::Correspondences merge_best(const std::vector<pcl::Correspondences>& sets,
   pcl::Correspondences out;
   for (std::size_t q = 0; q < n_model; ++q) {
     if (have[q]) out.push_back(best[q]);
-  }
-  return out;
-}
-
-// binpick's align.rs `shuffled`: the correspondences in a fixed pseudo-random order per
-// (correspondence set, threshold) stream, a SplitMix64 Fisher-Yates. PCL seeds every RANSAC
-// with the same constant; the permutation gives each run of the sweep its own samples.
-pcl::Correspondences shuffled(const pcl::Correspondences& corrs, std::uint64_t stream) {
-  std::uint64_t state = 0x9E3779B97F4A7C15ull ^ (stream * 0xD1B54A32D192ED03ull);
-  auto next = [&state]() {
-    state += 0x9E3779B97F4A7C15ull;
-    std::uint64_t z = state;
-    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-    return z ^ (z >> 31);
-  };
-  pcl::Correspondences out = corrs;
-  for (std::size_t i = out.size(); i-- > 1;) {
-    const auto j = static_cast<std::size_t>(next() % (static_cast<std::uint64_t>(i) + 1));
-    std::swap(out[i], out[j]);
   }
   return out;
 }
@@ -601,17 +580,15 @@ Initial initial_alignment(const PointCloudXYZ::Ptr& model, const PointCloudXYZ::
   const std::size_t n_th = p.sac_thresholds.size();
   const bool merged = p.algorithm == 2;
 
-  // Sweeps the SAC thresholds over one correspondence set (step iii / 1d).
+  // Sweeps the SAC thresholds over one correspondence set (step iii / 1d): one PCL rejector
+  // per threshold on the correspondences as found.
   auto sweep = [&](const pcl::Correspondences& corrs, int radius_index) {
     for (std::size_t k = 0; k < n_th; ++k) {
-      // The permutation stream is keyed by the radius (0 for Algorithm 2's merged set), as in
-      // align.rs, so a radius without descriptors does not shift the others' draws.
-      const std::size_t stream = static_cast<std::size_t>(radius_index < 0 ? 0 : radius_index) * n_th + k;
       Pose pose;
       double score = 0.0;
       std::size_t inliers = 0;
-      if (!hypothesis(mk.keypoints, cl.keypoints, shuffled(corrs, stream), p.sac_thresholds[k], p,
-                      t, pose, score, inliers)) {
+      if (!hypothesis(mk.keypoints, cl.keypoints, corrs, p.sac_thresholds[k], p, t, pose, score,
+                      inliers)) {
         continue;
       }
       if (!best.found || score < best.score) {  // strictly lower: earlier order wins ties

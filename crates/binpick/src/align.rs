@@ -64,8 +64,7 @@ impl ClusterFeatures {
             return Ok(None);
         }
         let keypoints: Vec<Point> = keypoint_idx.iter().map(|&i| cluster[i as usize]).collect();
-        let (surface, surface_kp) =
-            feature_surface(cluster, &keypoint_idx, &keypoints, params.feature_surface)?;
+        let (surface, surface_kp) = feature_surface(cluster, &keypoint_idx, &keypoints, params)?;
         let features = params
             .fpfh_radii_mm
             .par_iter()
@@ -126,37 +125,54 @@ pub(crate) fn initial_hypotheses(
         )];
     }
 
-    // Every (correspondence set, SAC threshold) pair is an independent hypothesis (step iii).
-    // Its RANSAC draws come from a permutation stream keyed by (radius, threshold).
     let n_th = params.sac_thresholds_mm.len();
-    let jobs: Vec<(usize, usize)> = (0..sets.len())
-        .flat_map(|s| (0..n_th).map(move |t| (s, t)))
-        .collect();
-    let hypotheses: Vec<Option<Hypothesis>> = jobs
-        .par_iter()
-        .map(|&(s, t)| {
-            deadline.check("RANSAC threshold sweep")?;
-            let (radius, corrs) = &sets[s];
-            let order = radius.unwrap_or(0) * n_th + t;
-            hypothesis(
-                model,
-                kp,
-                &world,
-                &shuffled(corrs, order as u64),
-                params.sac_thresholds_mm[t],
-                params,
-            )
-            .map(|h| {
-                h.map(|mut a| {
-                    a.fpfh_radius_mm = radius.map(|r| params.fpfh_radii_mm[r]);
-                    Hypothesis {
-                        order,
-                        alignment: a,
-                    }
-                })
+    let label = |radius: Option<usize>, t: usize, a: InitialAlignment| Hypothesis {
+        order: radius.unwrap_or(0) * n_th + t,
+        alignment: InitialAlignment {
+            fpfh_radius_mm: radius.map(|r| params.fpfh_radii_mm[r]),
+            ..a
+        },
+    };
+    let hypotheses: Vec<Option<Hypothesis>> = if params.thesis_strict {
+        // The thesis's sweep (step iii): one PCL rejector per threshold on the correspondences
+        // as found. PCL seeds every run alike, so the runs share their draws and one pass per
+        // correspondence set computes them all.
+        sets.par_iter()
+            .map(|(radius, corrs)| {
+                deadline.check("RANSAC threshold sweep")?;
+                Ok(threshold_sweep(model, kp, &world, corrs, params)?
+                    .into_iter()
+                    .enumerate()
+                    .map(|(t, a)| a.map(|a| label(*radius, t, a)))
+                    .collect::<Vec<_>>())
             })
-        })
-        .collect::<Result<_>>()?;
+            .collect::<Result<Vec<_>>>()?
+            .into_iter()
+            .flatten()
+            .collect()
+    } else {
+        // Every (correspondence set, SAC threshold) pair is an independent hypothesis, its
+        // RANSAC draws from a permutation stream keyed by (radius, threshold).
+        let jobs: Vec<(usize, usize)> = (0..sets.len())
+            .flat_map(|s| (0..n_th).map(move |t| (s, t)))
+            .collect();
+        jobs.par_iter()
+            .map(|&(s, t)| {
+                deadline.check("RANSAC threshold sweep")?;
+                let (radius, corrs) = &sets[s];
+                let stream = (radius.unwrap_or(0) * n_th + t) as u64;
+                hypothesis(
+                    model,
+                    kp,
+                    &world,
+                    &shuffled(corrs, stream),
+                    params.sac_thresholds_mm[t],
+                    params,
+                )
+                .map(|h| h.map(|a| label(*radius, t, a)))
+            })
+            .collect::<Result<_>>()?
+    };
     let mut all: Vec<Hypothesis> = hypotheses.into_iter().flatten().collect();
     all.sort_by(|a, b| {
         a.alignment
@@ -248,12 +264,108 @@ fn merge_best_per_model_keypoint(
     best.into_iter().flatten().collect()
 }
 
-/// Steps A-C for one threshold: RANSAC rejection, SVD on the kept pairs, Euclidean score.
-/// With `consensus_modes` > 1, RANSAC runs again on the correspondences the previous
-/// consensus did not keep (sequential RANSAC), so a second, smaller consensus - typically
-/// the true pose of a nearly symmetric part whose flipped pose gathers more matches - is
-/// scored too; the best Euclidean score wins. `Ok(None)` when nothing yields a proper
-/// rotation.
+/// Steps A-C for every threshold of the sweep on one correspondence set (thesis_strict):
+/// PCL's rejector per threshold (computed in one pass), SVD on the kept pairs, Euclidean
+/// score. One entry per threshold, `None` where nothing yields a proper rotation.
+fn threshold_sweep(
+    model: &PreparedModel,
+    cluster_kp: &[Point],
+    world: &NearestIndex,
+    corrs: &[Correspondence],
+    params: &Params,
+) -> Result<Vec<Option<InitialAlignment>>> {
+    let n_th = params.sac_thresholds_mm.len();
+    if corrs.len() < 3 {
+        return Ok(vec![None; n_th]);
+    }
+    let thresholds: Vec<f32> = params.sac_thresholds_mm.iter().map(|&t| t as f32).collect();
+    let runs = binpick_pcl::reject_sample_consensus_sweep(
+        &model.initial_keypoints,
+        cluster_kp,
+        corrs,
+        &thresholds,
+        params.sac_iterations,
+    )
+    .map_err(pcl("RANSAC rejection"))?;
+    // Thresholds that keep the same pairs give the same SVD and score: compute those once.
+    let mut seen: Vec<(&[Correspondence], Option<InitialAlignment>)> = Vec::new();
+    let mut out = Vec::with_capacity(n_th);
+    for (run, &threshold_mm) in runs.iter().zip(&params.sac_thresholds_mm) {
+        let consensus = match run {
+            Ok(c) => c,
+            Err(
+                binpick_pcl::Error::NoConsensus { .. }
+                | binpick_pcl::Error::ImproperRotation { .. },
+            ) => {
+                out.push(None);
+                continue;
+            }
+            Err(e) => {
+                return Err(Error::Pcl {
+                    stage: "RANSAC rejection",
+                    source: e.clone(),
+                });
+            }
+        };
+        let known = seen
+            .iter()
+            .find(|(kept, _)| *kept == consensus.kept.as_slice())
+            .map(|(_, a)| a.clone());
+        let alignment = match known {
+            Some(a) => a,
+            None => {
+                let a = svd_and_score(model, cluster_kp, world, &consensus.kept)?;
+                seen.push((&consensus.kept, a.clone()));
+                a
+            }
+        };
+        out.push(alignment.map(|a| InitialAlignment {
+            sac_threshold_mm: threshold_mm,
+            ..a
+        }));
+    }
+    Ok(out)
+}
+
+/// Steps B-C: SVD on the correspondences RANSAC kept, then the Euclidean score of the model
+/// keypoints placed by it. `Ok(None)` when fewer than 3 pairs or no proper rotation.
+fn svd_and_score(
+    model: &PreparedModel,
+    cluster_kp: &[Point],
+    world: &NearestIndex,
+    kept: &[Correspondence],
+) -> Result<Option<InitialAlignment>> {
+    if kept.len() < 3 {
+        return Ok(None);
+    }
+    let m = match binpick_pcl::estimate_svd(&model.initial_keypoints, cluster_kp, kept) {
+        Ok(m) => m,
+        Err(binpick_pcl::Error::ImproperRotation { .. }) => return Ok(None),
+        Err(e) => {
+            return Err(Error::Pcl {
+                stage: "SVD",
+                source: e,
+            });
+        }
+    };
+    let Some(pose) = from_mat4(&m) else {
+        return Ok(None);
+    };
+    Ok(Some(InitialAlignment {
+        pose,
+        score: euclidean_score(world, &model.initial_keypoints, &pose),
+        fpfh_radius_mm: None,
+        sac_threshold_mm: 0.0,
+        sac_inliers: kept.len(),
+    }))
+}
+
+/// Steps A-C for one threshold outside thesis_strict mode: RANSAC rejection, SVD on the
+/// kept pairs, Euclidean score. With `consensus_modes` > 1, RANSAC runs again on the
+/// correspondences the previous consensus did not keep (sequential RANSAC), so a second,
+/// smaller consensus - typically the true pose of a nearly symmetric part whose flipped pose
+/// gathers more matches - is scored too; the best Euclidean score wins. `Ok(None)` when
+/// nothing yields a proper rotation.
 fn hypothesis(
     model: &PreparedModel,
     cluster_kp: &[Point],
@@ -264,12 +376,7 @@ fn hypothesis(
 ) -> Result<Option<InitialAlignment>> {
     let mut remaining = corrs.to_vec();
     let mut best: Option<InitialAlignment> = None;
-    let modes = if params.thesis_strict {
-        1
-    } else {
-        params.consensus_modes.max(1)
-    };
-    for _ in 0..modes {
+    for _ in 0..params.consensus_modes.max(1) {
         if remaining.len() < 3 {
             break;
         }
@@ -297,29 +404,12 @@ fn hypothesis(
         }
         let kept: std::collections::HashSet<u32> = consensus.kept.iter().map(|c| c.query).collect();
         remaining.retain(|c| !kept.contains(&c.query));
-        let m = match binpick_pcl::estimate_svd(
-            &model.initial_keypoints,
-            cluster_kp,
-            &consensus.kept,
-        ) {
-            Ok(m) => m,
-            Err(binpick_pcl::Error::ImproperRotation { .. }) => continue,
-            Err(e) => {
-                return Err(Error::Pcl {
-                    stage: "SVD",
-                    source: e,
-                });
-            }
-        };
-        let Some(pose) = from_mat4(&m) else { continue };
-        let score = euclidean_score(world, &model.initial_keypoints, &pose);
-        if best.as_ref().is_none_or(|b| score < b.score) {
+        if let Some(a) = svd_and_score(model, cluster_kp, world, &consensus.kept)?
+            && best.as_ref().is_none_or(|b| a.score < b.score)
+        {
             best = Some(InitialAlignment {
-                pose,
-                score,
-                fpfh_radius_mm: None,
                 sac_threshold_mm: threshold_mm,
-                sac_inliers: consensus.kept.len(),
+                ..a
             });
         }
     }

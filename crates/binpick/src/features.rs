@@ -57,21 +57,27 @@ pub fn fpfh_for_radius(
 }
 
 /// The search surface for FPFH and the keypoint indices within it, per
-/// [`FeatureSurface`]: either the keypoints themselves or the full cloud.
+/// [`FeatureSurface`]: either the keypoints themselves or the full cloud. The surface caches
+/// its points' neighbourhoods up to the largest normal or FPFH radius of `params`, so the
+/// radii share one kd-tree search per point.
 pub fn feature_surface(
     points: &[Point],
     keypoint_idx: &[u32],
     keypoint_points: &[Point],
-    mode: FeatureSurface,
+    params: &Params,
 ) -> Result<(IndexedCloud, Vec<u32>)> {
-    match mode {
+    let widest = params
+        .fpfh_radii_mm
+        .iter()
+        .map(|&r| r.max(r * params.normal_radius_factor))
+        .fold(0.0f64, f64::max) as f32;
+    let upload =
+        |pts: &[Point]| IndexedCloud::with_neighbourhoods(pts, widest).map_err(pcl("FPFH surface"));
+    match params.feature_surface {
         FeatureSurface::Keypoints => Ok((
-            IndexedCloud::new(keypoint_points).map_err(pcl("FPFH surface"))?,
+            upload(keypoint_points)?,
             (0..keypoint_points.len() as u32).collect(),
         )),
-        FeatureSurface::Cloud => Ok((
-            IndexedCloud::new(points).map_err(pcl("FPFH surface"))?,
-            keypoint_idx.to_vec(),
-        )),
+        FeatureSurface::Cloud => Ok((upload(points)?, keypoint_idx.to_vec())),
     }
 }

@@ -64,8 +64,7 @@ impl PreparedModel {
                 ),
             ));
         }
-        let (surface, surface_kp) =
-            feature_surface(&cloud, &kp_idx, &initial_keypoints, params.feature_surface)?;
+        let (surface, surface_kp) = feature_surface(&cloud, &kp_idx, &initial_keypoints, params)?;
         let features = params
             .fpfh_radii_mm
             .par_iter()
