@@ -27,8 +27,7 @@ const SOURCES: &[&str] = &[
 const HEADERS: &[&str] = &["cpp/include/binpick_pcl.h", "cpp/include/internal.h"];
 
 /// The reference pipeline (thesis Algorithms 1 and 2 written directly against PCL, one call per
-/// scene). Compiled as its own library because only it is built with OpenMP (`-fopenmp`, for
-/// its `#pragma omp parallel for` over clusters, thesis 4.4).
+/// scene). Compiled as its own library because only it is built with OpenMP.
 const REFERENCE_SOURCES: &[&str] = &["cpp/reference/pipeline.cpp"];
 
 fn main() {
@@ -74,6 +73,8 @@ fn main() {
     // include paths of the generated header.
     let mut reference = cxx_build::bridges(std::iter::empty::<&str>());
     configure(&mut reference, REFERENCE_SOURCES, &include_dirs);
+    // For its `#pragma omp parallel for` over clusters (thesis 4.4); the bridge uses no OpenMP
+    // of its own.
     reference.flag("-fopenmp");
     reference.compile("binpick_pcl_reference");
     println!("cargo:rustc-link-lib=gomp");

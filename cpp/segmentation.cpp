@@ -1,9 +1,17 @@
 // Euclidean clustering and supporting-plane fit (pcl_segmentation, pcl_sample_consensus).
 #include <pcl/ModelCoefficients.h>
 #include <pcl/segmentation/extract_clusters.h>
+#include <pcl/sample_consensus/ransac.h>
+#include <pcl/sample_consensus/sac_model_plane.h>
 #include <pcl/segmentation/sac_segmentation.h>
 
+
 #include <algorithm>
+#include <atomic>
+#include <functional>
+#include <limits>
+#include <numeric>
+#include <thread>
 
 #include "binpick-pcl/src/ffi.rs.h"
 #include "internal.h"
@@ -43,24 +51,137 @@ Clusters euclidean_clusters(const Cloud& cloud, float tolerance, std::uint32_t m
   return out;
 }
 
+namespace {
+
+// Runs one job per shard, shard 0 on the calling thread and the others on helper threads
+// that live as long as the runner (one plane fit) and wait for work by spinning: RANSAC asks
+// for a count every few microseconds, far too often to start threads or sleep between.
+class ShardRunner {
+ public:
+  explicit ShardRunner(int shards) : shards_(shards) {
+    for (int s = 1; s < shards; ++s) helpers_.emplace_back([this, s] { serve(s); });
+  }
+  ~ShardRunner() {
+    stop_.store(true, std::memory_order_relaxed);
+    generation_.fetch_add(1, std::memory_order_release);
+    for (auto& t : helpers_) t.join();
+  }
+  ShardRunner(const ShardRunner&) = delete;
+  ShardRunner& operator=(const ShardRunner&) = delete;
+
+  // Calls job(s) for every shard s and returns when all have returned. Not reentrant.
+  void run(const std::function<void(int)>& job) {
+    job_ = &job;
+    done_.store(0, std::memory_order_relaxed);
+    generation_.fetch_add(1, std::memory_order_release);
+    job(0);
+    while (done_.load(std::memory_order_acquire) < shards_ - 1) std::this_thread::yield();
+  }
+
+ private:
+  void serve(int shard) {
+    std::uint64_t seen = 0;
+    for (;;) {
+      std::uint64_t g;
+      while ((g = generation_.load(std::memory_order_acquire)) == seen) std::this_thread::yield();
+      seen = g;
+      if (stop_.load(std::memory_order_relaxed)) return;
+      (*job_)(shard);
+      done_.fetch_add(1, std::memory_order_release);
+    }
+  }
+
+  const int shards_;
+  const std::function<void(int)>* job_ = nullptr;
+  std::atomic<std::uint64_t> generation_{0};
+  std::atomic<int> done_{0};
+  std::atomic<bool> stop_{false};
+  std::vector<std::thread> helpers_;
+};
+
+// pcl::SampleConsensusModelPlane whose inlier count, RANSAC's inner loop and most of a plane
+// fit's time, is split over threads: each thread counts one contiguous shard of the indices
+// with PCL's own countWithinDistance on a model of that shard, and the integer counts add up
+// to the whole model's count whatever the split. Shard bounds are multiples of 4 so a PCL
+// build that counts four points at a time (SSE/AVX) groups the points as it would unsplit.
+class ShardedPlaneModel : public pcl::SampleConsensusModelPlane<pcl::PointXYZ> {
+ public:
+  using Plane = pcl::SampleConsensusModelPlane<pcl::PointXYZ>;
+
+  ShardedPlaneModel(const PointCloudXYZ::ConstPtr& cloud, const pcl::Indices& indices,
+                    int threads)
+      : Plane(cloud, indices, /*random=*/false), runner_(threads), counts_(threads) {
+    const std::size_t n = indices.size();
+    for (int s = 0; s < threads; ++s) {
+      const std::size_t begin = (n * s / threads) & ~std::size_t{3};
+      const std::size_t end = s + 1 == threads ? n : (n * (s + 1) / threads) & ~std::size_t{3};
+      shards_.push_back(std::make_shared<Plane>(
+          cloud, pcl::Indices(indices.begin() + begin, indices.begin() + end), false));
+    }
+  }
+
+  std::size_t countWithinDistance(const Eigen::VectorXf& coefficients,
+                                  const double threshold) const override {
+    runner_.run([&](int s) { counts_[s] = shards_[s]->countWithinDistance(coefficients, threshold); });
+    return std::accumulate(counts_.begin(), counts_.end(), std::size_t{0});
+  }
+
+ private:
+  std::vector<std::shared_ptr<Plane>> shards_;
+  mutable ShardRunner runner_;
+  mutable std::vector<std::size_t> counts_;
+};
+
+// Below this many points a plane fit is not worth splitting over threads.
+constexpr std::size_t kMinPointsPerShard = 20000;
+
+}  // namespace
+
 // pcl::SACSegmentation, RANSAC plane with optimised coefficients (deterministic: PCL seeds
-// its generator with 12345). `found` is false when PCL finds no plane.
+// its generator with 12345). `found` is false when PCL finds no plane. With `threads` > 1
+// (0 = all cores) and a large cloud, the same fit runs as SACSegmentation::segment does
+// (PCL's RandomSampleConsensus, coefficient refinement and final selection on a
+// SampleConsensusModelPlane) with the inlier counts split over threads: same draws, same
+// counts, same plane (bridge test `plane_fit_is_the_same_on_any_number_of_threads`).
 PlaneFit segment_plane(rust::Slice<const float> xyz, float distance_threshold,
-                       std::uint32_t max_iterations) {
+                       std::uint32_t max_iterations, std::uint32_t threads) {
   check_positive(distance_threshold, "plane distance threshold");
   if (max_iterations == 0) fail("plane fit needs at least one RANSAC iteration");
+  if (max_iterations > static_cast<std::uint32_t>(std::numeric_limits<int>::max() / 10)) {
+    fail("plane fit: ", max_iterations, " RANSAC iterations is too many");
+  }
   const auto cloud = to_cloud(xyz, "segment_plane");
   if (cloud->size() < 3) fail("segment_plane: needs at least 3 points, got ", cloud->size());
-  pcl::SACSegmentation<pcl::PointXYZ> seg;
-  seg.setOptimizeCoefficients(true);
-  seg.setModelType(pcl::SACMODEL_PLANE);
-  seg.setMethodType(pcl::SAC_RANSAC);
-  seg.setDistanceThreshold(distance_threshold);
-  seg.setMaxIterations(static_cast<int>(max_iterations));
-  seg.setInputCloud(cloud);
+  const int shards = static_cast<int>(std::min<std::size_t>(
+      threads == 0 ? std::max(1u, std::thread::hardware_concurrency()) : threads,
+      cloud->size() / kMinPointsPerShard));
+
   pcl::PointIndices inliers;
   pcl::ModelCoefficients coefficients;
-  seg.segment(inliers, coefficients);
+  if (shards < 2) {
+    pcl::SACSegmentation<pcl::PointXYZ> seg;
+    seg.setOptimizeCoefficients(true);
+    seg.setModelType(pcl::SACMODEL_PLANE);
+    seg.setMethodType(pcl::SAC_RANSAC);
+    seg.setDistanceThreshold(distance_threshold);
+    seg.setMaxIterations(static_cast<int>(max_iterations));
+    seg.setInputCloud(cloud);
+    seg.segment(inliers, coefficients);
+  } else {
+    pcl::Indices all(cloud->size());
+    std::iota(all.begin(), all.end(), 0);
+    auto model = std::make_shared<ShardedPlaneModel>(cloud, all, shards);
+    pcl::RandomSampleConsensus<pcl::PointXYZ> sac(model, distance_threshold);
+    sac.setMaxIterations(static_cast<int>(max_iterations));
+    if (sac.computeModel(0)) {
+      sac.getInliers(inliers.indices);
+      Eigen::VectorXf coeff(model->getModelSize()), refined(model->getModelSize());
+      sac.getModelCoefficients(coeff);
+      model->optimizeModelCoefficients(inliers.indices, coeff, refined);
+      coefficients.values.assign(refined.data(), refined.data() + refined.size());
+      model->selectWithinDistance(refined, distance_threshold, inliers.indices);
+    }
+  }
   PlaneFit out;
   out.found = !inliers.indices.empty() && coefficients.values.size() == 4;
   if (out.found) {

@@ -229,6 +229,7 @@ pub(crate) mod bridge {
             xyz: &[f32],
             distance_threshold: f32,
             max_iterations: u32,
+            threads: u32,
         ) -> Result<PlaneFit>;
 
         fn match_features(

@@ -159,14 +159,16 @@ pub struct Plane {
 }
 
 /// RANSAC plane fit (`pcl::SACSegmentation`, optimised coefficients, fixed seed). `Ok(None)`
-/// when PCL finds no plane.
+/// when PCL finds no plane. `threads` (0 = all cores) split RANSAC's inlier counts on large
+/// clouds; the plane does not depend on it.
 pub fn segment_plane(
     points: &[Point],
     distance_threshold: f32,
     max_iterations: u32,
+    threads: u32,
 ) -> Result<Option<Plane>> {
     init();
-    let fit = bridge::segment_plane(flat(points), distance_threshold, max_iterations)
+    let fit = bridge::segment_plane(flat(points), distance_threshold, max_iterations, threads)
         .map_err(pcl_err("SACSegmentation"))?;
     Ok(fit.found.then_some(Plane {
         coefficients: fit.coefficients,

@@ -461,11 +461,42 @@ fn plane_segmentation_removes_the_floor_and_keeps_objects() {
     for p in bracket() {
         pts.push([p[0] + 100.0, p[1] + 60.0, p[2] + 8.0]);
     }
-    let plane = segment_plane(&pts, 1.0, 200).unwrap().expect("a floor");
+    let plane = segment_plane(&pts, 1.0, 200, 1).unwrap().expect("a floor");
     assert_eq!(plane.inliers.len(), floor);
     assert!(plane.inliers.iter().all(|&i| (i as usize) < floor));
     let n = plane.coefficients;
     assert!(n[2].abs() > 0.999, "floor normal is vertical: {n:?}");
+}
+
+/// Splitting RANSAC's inlier counts over threads must not change the fit: on a cloud large
+/// enough to be split, PCL's SACSegmentation (one thread) and the split fit (2, 3 threads and
+/// all cores) return the same plane bit for bit and the same inliers in the same order. Two
+/// noisy planes and uniform clutter of similar sizes make RANSAC use all its iterations and
+/// choose between close counts.
+#[test]
+fn plane_fit_is_the_same_on_any_number_of_threads() {
+    let mut rng = Rng(0xfeed_beef);
+    let mut pts = Vec::new();
+    for _ in 0..30_000 {
+        let (x, y) = (rng.next() * 400.0, rng.next() * 300.0);
+        pts.push([x, y, (rng.next() - 0.5) * 3.0]);
+    }
+    for _ in 0..25_000 {
+        let (x, z) = (rng.next() * 400.0, rng.next() * 200.0);
+        pts.push([x, 0.3 * z + (rng.next() - 0.5) * 3.0, z]);
+    }
+    for _ in 0..35_000 {
+        pts.push([rng.next() * 400.0, rng.next() * 300.0, rng.next() * 200.0]);
+    }
+    let key = |p: &binpick_pcl::Plane| (p.coefficients.map(f32::to_bits), p.inliers.clone());
+    let single = segment_plane(&pts, 1.0, 300, 1).unwrap().expect("a plane");
+    assert!(single.inliers.len() > 20_000, "{}", single.inliers.len());
+    for threads in [2, 3, 0] {
+        let split = segment_plane(&pts, 1.0, 300, threads)
+            .unwrap()
+            .expect("a plane");
+        assert_eq!(key(&split), key(&single), "{threads} threads");
+    }
 }
 
 #[test]
@@ -588,10 +619,10 @@ fn bad_input_is_an_error_not_a_crash() {
             .is_err()
     );
     assert!(match_features(&[[f32::NAN; 33]], &[[0.0; 33]]).is_err());
-    assert!(segment_plane(&pts[..2], 1.0, 10).is_err());
+    assert!(segment_plane(&pts[..2], 1.0, 10, 1).is_err());
     // All points collinear: PCL finds no plane; reported as None, not garbage.
     let line: Vec<Point> = (0..50).map(|i| [i as f32, 0.0, 0.0]).collect();
-    assert!(segment_plane(&line, 0.1, 50).unwrap().is_none());
+    assert!(segment_plane(&line, 0.1, 50, 2).unwrap().is_none());
 }
 
 #[test]

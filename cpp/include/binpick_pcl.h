@@ -66,7 +66,7 @@ Features cloud_fpfh(const Cloud& surface, rust::Slice<const std::uint32_t> keypo
 Clusters euclidean_clusters(const Cloud& cloud, float tolerance, std::uint32_t min_size,
                             std::uint32_t max_size);
 PlaneFit segment_plane(rust::Slice<const float> xyz, float distance_threshold,
-                       std::uint32_t max_iterations);
+                       std::uint32_t max_iterations, std::uint32_t threads);
 
 // --- registration.cpp (pcl_registration) -------------------------------------------------
 rust::Vec<Correspondence> match_features(rust::Slice<const float> source_features,

@@ -265,7 +265,7 @@ impl Recognizer {
         check_extent("scene", scene, p)?;
 
         let t = Instant::now();
-        let (world, report) = preprocess(scene, p, self.model.cloud.len())?;
+        let (world, report) = preprocess(scene, p, self.model.cloud.len(), self.threads)?;
         timings.preprocess_ms = ms(t.elapsed());
         deadline.check("preprocessing")?;
         if world.len() < 3 {

@@ -31,11 +31,13 @@ pub struct PreprocessReport {
 }
 
 /// Crops, voxelises and strips support planes. `model_points` (voxelised model size) sets
-/// the smallest plane that counts as support.
+/// the smallest plane that counts as support; `threads` split the plane fits' inlier counts
+/// (the result does not depend on them).
 pub fn preprocess(
     scene: &PointCloud,
     params: &Params,
     model_points: usize,
+    threads: usize,
 ) -> Result<(Vec<Point>, PreprocessReport)> {
     let mut report = PreprocessReport {
         input_points: scene.len(),
@@ -73,7 +75,7 @@ pub fn preprocess(
     report.voxel_merged = cropped.len() - points.len();
 
     if params.support.enabled {
-        points = remove_support(points, params, model_points, &mut report)?;
+        points = remove_support(points, params, model_points, threads, &mut report)?;
     }
     report.remaining = points.len();
     Ok((points, report))
@@ -89,6 +91,7 @@ fn remove_support(
     points: Vec<Point>,
     params: &Params,
     model_points: usize,
+    threads: usize,
     report: &mut PreprocessReport,
 ) -> Result<Vec<Point>> {
     let min_patch = (params.support.min_points_factor * model_points as f64)
@@ -107,6 +110,7 @@ fn remove_support(
             &cand_pts,
             params.support.distance_mm as f32,
             params.support.ransac_iterations,
+            threads as u32,
         )
         .map_err(pcl("support plane fit"))?
         else {
