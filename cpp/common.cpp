@@ -2,9 +2,12 @@
 #include <pcl/common/common.h>
 #include <pcl/console/print.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <numeric>
+#include <thread>
 
 #include "binpick-pcl/src/ffi.rs.h"
 #include "internal.h"
@@ -111,22 +114,52 @@ std::unique_ptr<Cloud> upload_cloud(rust::Slice<const float> xyz) {
 // Other queries (foreign clouds, larger radii, bounded counts, k-NN) go to the kd-tree.
 class CachedNeighbourhoods : public pcl::search::Search<pcl::PointXYZ> {
  public:
-  // Builds the lists; returns null if they would hold more than `max_entries` neighbours.
+  // Builds the lists on `threads` threads (each a contiguous range of points, joined in
+  // order); returns null if they would hold more than `max_entries` neighbours.
   static std::shared_ptr<CachedNeighbourhoods> build(
       const PointCloudXYZ::Ptr& cloud, const pcl::search::KdTree<pcl::PointXYZ>::Ptr& tree,
-      double radius, std::size_t max_entries) {
+      double radius, std::size_t max_entries, unsigned threads) {
+    struct Part {
+      std::vector<std::size_t> counts;
+      pcl::Indices neighbours;
+      std::vector<float> sqr_distances;
+      bool too_many = false;
+    };
+    const std::size_t n = cloud->size();
+    threads = static_cast<unsigned>(std::clamp<std::size_t>(threads, 1, std::max<std::size_t>(1, n / 1000)));
+    std::vector<Part> parts(threads);
+    auto fill = [&](unsigned t) {
+      Part& part = parts[t];
+      pcl::Indices idx;
+      std::vector<float> d2;
+      for (std::size_t i = n * t / threads; i < n * (t + 1) / threads; ++i) {
+        tree->radiusSearch((*cloud)[i], radius, idx, d2);
+        if (part.neighbours.size() + idx.size() > max_entries) {
+          part.too_many = true;
+          return;
+        }
+        part.counts.push_back(idx.size());
+        part.neighbours.insert(part.neighbours.end(), idx.begin(), idx.end());
+        part.sqr_distances.insert(part.sqr_distances.end(), d2.begin(), d2.end());
+      }
+    };
+    std::vector<std::thread> helpers;
+    for (unsigned t = 1; t < threads; ++t) helpers.emplace_back(fill, t);
+    fill(0);
+    for (auto& h : helpers) h.join();
+
     std::shared_ptr<CachedNeighbourhoods> cache(new CachedNeighbourhoods(cloud, tree, radius));
     auto& c = *cache;
-    c.offsets_.reserve(cloud->size() + 1);
+    c.offsets_.reserve(n + 1);
     c.offsets_.push_back(0);
-    pcl::Indices idx;
-    std::vector<float> d2;
-    for (const auto& p : cloud->points) {
-      tree->radiusSearch(p, radius, idx, d2);
-      if (c.neighbours_.size() + idx.size() > max_entries) return nullptr;
-      c.neighbours_.insert(c.neighbours_.end(), idx.begin(), idx.end());
-      c.sqr_distances_.insert(c.sqr_distances_.end(), d2.begin(), d2.end());
-      c.offsets_.push_back(c.neighbours_.size());
+    for (auto& part : parts) {
+      if (part.too_many || c.neighbours_.size() + part.neighbours.size() > max_entries) {
+        return nullptr;
+      }
+      for (std::size_t k : part.counts) c.offsets_.push_back(c.offsets_.back() + k);
+      c.neighbours_.insert(c.neighbours_.end(), part.neighbours.begin(), part.neighbours.end());
+      c.sqr_distances_.insert(c.sqr_distances_.end(), part.sqr_distances.begin(),
+                              part.sqr_distances.end());
     }
     return cache;
   }
@@ -155,8 +188,15 @@ class CachedNeighbourhoods : public pcl::search::Search<pcl::PointXYZ> {
     return radiusSearch(*input_, index, radius, k_indices, k_sqr_distances, max_nn);
   }
 
+  // PCL's Euclidean clustering queries by point reference into the cloud; such a query is
+  // the cloud's own point and is served from the cache too.
   int radiusSearch(const pcl::PointXYZ& point, double radius, pcl::Indices& k_indices,
                    std::vector<float>& k_sqr_distances, unsigned int max_nn = 0) const override {
+    const auto& pts = input_->points;
+    if (!pts.empty() && &point >= pts.data() && &point < pts.data() + pts.size()) {
+      const auto index = static_cast<pcl::index_t>(&point - pts.data());
+      return radiusSearch(*input_, index, radius, k_indices, k_sqr_distances, max_nn);
+    }
     return tree_->radiusSearch(point, radius, k_indices, k_sqr_distances, max_nn);
   }
 
@@ -165,13 +205,19 @@ class CachedNeighbourhoods : public pcl::search::Search<pcl::PointXYZ> {
     return tree_->nearestKSearch(point, k, k_indices, k_sqr_distances);
   }
 
-  // PCL's estimators re-point their search method at their surface; the cache only serves
-  // the cloud it was built on.
+  // PCL's estimators and clustering re-point their search method at their input (clustering
+  // with the indices of every point, in order, which leaves the answers unchanged); the cache
+  // only serves the cloud it was built on, whole.
   void setInputCloud(const PointCloudConstPtr& cloud,
                      const IndicesConstPtr& indices = IndicesConstPtr()) override {
-    if (cloud != input_ || indices) {
-      throw std::logic_error("CachedNeighbourhoods serves only the cloud it was built on");
+    bool whole = !indices || indices->size() == input_->size();
+    for (std::size_t i = 0; whole && indices && i < indices->size(); ++i) {
+      whole = (*indices)[i] == static_cast<pcl::index_t>(i);
     }
+    if (cloud != input_ || !whole) {
+      throw std::logic_error("CachedNeighbourhoods serves only the whole cloud it was built on");
+    }
+    // Nothing to store: the cache is shared by threads and never changes after construction.
   }
 
  private:
@@ -181,6 +227,10 @@ class CachedNeighbourhoods : public pcl::search::Search<pcl::PointXYZ> {
         tree_(tree),
         radius_(radius) {
     input_ = cloud;
+    // Every point, in order (what clustering checks the search method was given).
+    auto all = std::make_shared<pcl::Indices>(cloud->size());
+    std::iota(all->begin(), all->end(), 0);
+    indices_ = all;
   }
 
   pcl::search::KdTree<pcl::PointXYZ>::Ptr tree_;
@@ -203,13 +253,14 @@ pcl::search::Search<pcl::PointXYZ>::Ptr radius_search_method(const Cloud::Impl& 
 constexpr std::size_t kMaxCachedNeighbours = std::size_t{16} << 20;
 
 std::unique_ptr<Cloud> upload_cloud_with_neighbourhoods(rust::Slice<const float> xyz,
-                                                        float radius) {
+                                                        float radius, std::uint32_t threads) {
   check_positive(radius, "neighbourhood radius");
   auto impl = std::make_unique<Cloud::Impl>();
   impl->points = to_cloud(xyz, "upload_cloud_with_neighbourhoods");
   impl->tree = make_tree(impl->points);
   impl->neighbourhoods =
-      CachedNeighbourhoods::build(impl->points, impl->tree, radius, kMaxCachedNeighbours);
+      CachedNeighbourhoods::build(impl->points, impl->tree, radius, kMaxCachedNeighbours,
+                                  threads == 0 ? std::thread::hardware_concurrency() : threads);
   impl->neighbourhood_radius = impl->neighbourhoods ? static_cast<double>(radius) : 0.0;
   return std::make_unique<Cloud>(std::move(impl));
 }

@@ -18,7 +18,8 @@
 
 namespace binpick {
 
-// pcl::EuclideanClusterExtraction (thesis 3.4.1.3) on an uploaded cloud, reusing its kd-tree.
+// pcl::EuclideanClusterExtraction (thesis 3.4.1.3) on an uploaded cloud, reusing its kd-tree
+// (or its neighbourhood cache, when the upload built one that covers the tolerance).
 // Clusters outside [min_size, max_size] are dropped by PCL, not split. Output: indices of all
 // clusters concatenated (each cluster's indices ascending), `offsets[i]..offsets[i+1]` per
 // cluster; clusters ordered by their smallest index so the order never depends on ties in
@@ -34,7 +35,11 @@ Clusters euclidean_clusters(const Cloud& cloud, float tolerance, std::uint32_t m
   ec.setClusterTolerance(tolerance);
   ec.setMinClusterSize(static_cast<pcl::uindex_t>(min_size));
   ec.setMaxClusterSize(static_cast<pcl::uindex_t>(max_size));
-  ec.setSearchMethod(c.tree);
+  // PCL's clustering re-points its search method at the input, which rebuilds a kd-tree: it
+  // gets a tree of its own so the shared cloud is never modified (the cache is not rebuilt).
+  ec.setSearchMethod(c.neighbourhoods && tolerance <= c.neighbourhood_radius
+                         ? radius_search_method(c, tolerance)
+                         : make_tree(c.points));
   ec.setInputCloud(c.points);
   std::vector<pcl::PointIndices> found;
   ec.extract(found);

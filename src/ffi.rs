@@ -196,7 +196,11 @@ pub(crate) mod bridge {
 
         fn set_pcl_verbosity(level: i32) -> Result<()>;
         fn upload_cloud(xyz: &[f32]) -> Result<UniquePtr<Cloud>>;
-        fn upload_cloud_with_neighbourhoods(xyz: &[f32], radius: f32) -> Result<UniquePtr<Cloud>>;
+        fn upload_cloud_with_neighbourhoods(
+            xyz: &[f32],
+            radius: f32,
+            threads: u32,
+        ) -> Result<UniquePtr<Cloud>>;
         fn cloud_len(cloud: &Cloud) -> usize;
         fn cloud_neighbourhood_radius(cloud: &Cloud) -> f64;
         fn nearest_sq_distances(cloud: &Cloud, query_xyz: &[f32]) -> Result<Vec<f32>>;

@@ -381,13 +381,14 @@ impl IndexedCloud {
         Ok(Self { inner, len })
     }
 
-    /// [`IndexedCloud::new`], and every point's neighbours within `radius` found once, so
-    /// normals and FPFH ([`IndexedCloud::fpfh`]) at any radius up to it reuse them instead of
-    /// searching the kd-tree again per radius and per pass. Same answers as without; a cloud
-    /// so dense that the lists would exceed 16 Mi neighbours is searched without them.
-    pub fn with_neighbourhoods(points: &[Point], radius: f32) -> Result<Self> {
+    /// [`IndexedCloud::new`], and every point's neighbours within `radius` found once (on
+    /// `threads` threads, 0 = all cores), so normals and FPFH ([`IndexedCloud::fpfh`]) and
+    /// Euclidean clustering at any radius up to it reuse them instead of searching the kd-tree
+    /// again per radius and per pass. Same answers as without; a cloud so dense that the lists
+    /// would exceed 16 Mi neighbours is searched without them.
+    pub fn with_neighbourhoods(points: &[Point], radius: f32, threads: u32) -> Result<Self> {
         init();
-        let inner = bridge::upload_cloud_with_neighbourhoods(flat(points), radius)
+        let inner = bridge::upload_cloud_with_neighbourhoods(flat(points), radius, threads)
             .map_err(pcl_err("upload"))?;
         let len = bridge::cloud_len(&inner);
         Ok(Self { inner, len })

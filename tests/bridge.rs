@@ -198,7 +198,7 @@ fn cached_neighbourhoods_give_the_kd_tree_fpfh() {
     let mut cached_radii = 0;
     for (points, idx) in [(&surface, &keypoints), (&kp_points, &all)] {
         let plain = IndexedCloud::new(points).unwrap();
-        let cached = IndexedCloud::with_neighbourhoods(points, 10.0).unwrap();
+        let cached = IndexedCloud::with_neighbourhoods(points, 10.0, 2).unwrap();
         assert_eq!(plain.neighbourhood_radius(), None);
         assert_eq!(cached.neighbourhood_radius(), Some(10.0));
         for radius in [3.0f32, 5.5, 8.5, 10.0, 12.0] {
@@ -222,8 +222,8 @@ fn cached_neighbourhoods_give_the_kd_tree_fpfh() {
         }
     }
     assert_eq!(cached_radii, 16);
-    assert!(IndexedCloud::with_neighbourhoods(&surface, 0.0).is_err());
-    assert!(IndexedCloud::with_neighbourhoods(&surface, f32::NAN).is_err());
+    assert!(IndexedCloud::with_neighbourhoods(&surface, 0.0, 1).is_err());
+    assert!(IndexedCloud::with_neighbourhoods(&surface, f32::NAN, 1).is_err());
 }
 
 #[test]
@@ -305,6 +305,51 @@ fn euclidean_clusters_counts_sizes_and_filters() {
     // A tolerance below the grid spacing shatters every blob into single points.
     assert!(cloud.euclidean_clusters(0.5, 2, 10_000).unwrap().is_empty());
     assert!(cloud.euclidean_clusters(1.5, 0, 10).is_err());
+}
+
+/// Clustering through the neighbourhood cache (built on several threads) must give the
+/// kd-tree's clusters: on jittered blobs and scattered points whose clusters hinge on
+/// distances near the tolerance, at the cached tolerance and at smaller and larger ones.
+#[test]
+fn cached_neighbourhoods_give_the_kd_tree_clusters() {
+    let mut rng = Rng(0x0dd_ba11);
+    let mut pts = Vec::new();
+    for (k, centre) in [[0.0f32, 0.0, 0.0], [31.0, 0.0, 0.0], [0.0, 45.0, 5.0]]
+        .iter()
+        .enumerate()
+    {
+        for i in 0..(20 + 5 * k) {
+            for j in 0..20 {
+                let jitter = |rng: &mut Rng| (rng.next() - 0.5) * 0.8;
+                pts.push([
+                    centre[0] + i as f32 + jitter(&mut rng),
+                    centre[1] + j as f32 + jitter(&mut rng),
+                    centre[2] + jitter(&mut rng),
+                ]);
+            }
+        }
+    }
+    for _ in 0..1500 {
+        pts.push([rng.next() * 80.0, rng.next() * 80.0, rng.next() * 10.0]);
+    }
+    let cached = IndexedCloud::with_neighbourhoods(&pts, 1.5, 2).unwrap();
+    assert_eq!(cached.neighbourhood_radius(), Some(1.5));
+    let mut distinct = std::collections::HashSet::new();
+    for tolerance in [0.9f32, 1.2, 1.5, 2.5] {
+        for (min, max) in [(1, 100_000), (30, 450)] {
+            let want = IndexedCloud::new(&pts)
+                .unwrap()
+                .euclidean_clusters(tolerance, min, max)
+                .unwrap();
+            assert_eq!(
+                cached.euclidean_clusters(tolerance, min, max).unwrap(),
+                want,
+                "tolerance {tolerance}, sizes {min}..{max}"
+            );
+            distinct.insert(want);
+        }
+    }
+    assert!(distinct.len() >= 6, "the cases differ: {}", distinct.len());
 }
 
 #[test]

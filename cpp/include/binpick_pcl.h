@@ -46,7 +46,7 @@ class Cloud {
 void set_pcl_verbosity(std::int32_t level);
 std::unique_ptr<Cloud> upload_cloud(rust::Slice<const float> xyz);
 std::unique_ptr<Cloud> upload_cloud_with_neighbourhoods(rust::Slice<const float> xyz,
-                                                        float radius);
+                                                        float radius, std::uint32_t threads);
 std::size_t cloud_len(const Cloud& cloud);
 double cloud_neighbourhood_radius(const Cloud& cloud);
 rust::Vec<float> nearest_sq_distances(const Cloud& cloud, rust::Slice<const float> query_xyz);

@@ -71,8 +71,9 @@ pub fn feature_surface(
         .iter()
         .map(|&r| r.max(r * params.normal_radius_factor))
         .fold(0.0f64, f64::max) as f32;
-    let upload =
-        |pts: &[Point]| IndexedCloud::with_neighbourhoods(pts, widest).map_err(pcl("FPFH surface"));
+    let upload = |pts: &[Point]| {
+        IndexedCloud::with_neighbourhoods(pts, widest, 1).map_err(pcl("FPFH surface"))
+    };
     match params.feature_surface {
         FeatureSurface::Keypoints => Ok((
             upload(keypoint_points)?,

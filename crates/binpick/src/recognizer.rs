@@ -283,9 +283,12 @@ impl Recognizer {
 
         let t = Instant::now();
         let (min_size, max_size) = self.cluster_size_range();
-        let world_cloud = IndexedCloud::new(&world).map_err(pcl("scene upload"))?;
+        // Each point's neighbourhood at the tolerance is found once, on all threads.
+        let tolerance = p.cluster_tolerance_mm() as f32;
+        let world_cloud = IndexedCloud::with_neighbourhoods(&world, tolerance, self.threads as u32)
+            .map_err(pcl("scene upload"))?;
         let clusters = world_cloud
-            .euclidean_clusters(p.cluster_tolerance_mm() as f32, min_size, max_size)
+            .euclidean_clusters(tolerance, min_size, max_size)
             .map_err(pcl("clustering"))?;
         drop(world_cloud);
         let final_world = FinalWorld::new(&world, p)?;
