@@ -95,11 +95,18 @@ void check_grid(const PointCloudXYZ& cloud, float leaf, const char* what) {
   }
 }
 
-std::unique_ptr<Cloud> upload_cloud(rust::Slice<const float> xyz) {
+namespace {
+// The cloud and its kd-tree, as every upload starts.
+std::unique_ptr<Cloud::Impl> new_cloud(rust::Slice<const float> xyz, const char* what) {
   auto impl = std::make_unique<Cloud::Impl>();
-  impl->points = to_cloud(xyz, "upload_cloud");
+  impl->points = to_cloud(xyz, what);
   impl->tree = make_tree(impl->points);
-  return std::make_unique<Cloud>(std::move(impl));
+  return impl;
+}
+}  // namespace
+
+std::unique_ptr<Cloud> upload_cloud(rust::Slice<const float> xyz) {
+  return std::make_unique<Cloud>(new_cloud(xyz, "upload_cloud"));
 }
 
 // A pcl::search::Search answering radius searches of the cloud's own points from neighbour
@@ -255,9 +262,7 @@ constexpr std::size_t kMaxCachedNeighbours = std::size_t{16} << 20;
 std::unique_ptr<Cloud> upload_cloud_with_neighbourhoods(rust::Slice<const float> xyz,
                                                         float radius, std::uint32_t threads) {
   check_positive(radius, "neighbourhood radius");
-  auto impl = std::make_unique<Cloud::Impl>();
-  impl->points = to_cloud(xyz, "upload_cloud_with_neighbourhoods");
-  impl->tree = make_tree(impl->points);
+  auto impl = new_cloud(xyz, "upload_cloud_with_neighbourhoods");
   impl->neighbourhoods =
       CachedNeighbourhoods::build(impl->points, impl->tree, radius, kMaxCachedNeighbours,
                                   threads == 0 ? std::thread::hardware_concurrency() : threads);

@@ -140,6 +140,25 @@ Eigen::Matrix4d from_row_major(const std::array<double, 16>& a) {
   return m;
 }
 
+// PCL correspondences as the bridge's plain struct.
+void append_rust(const pcl::Correspondences& corrs, rust::Vec<Correspondence>& out) {
+  out.reserve(out.size() + corrs.size());
+  for (const auto& c : corrs) {
+    out.push_back(Correspondence{static_cast<std::uint32_t>(c.index_query),
+                                 static_cast<std::uint32_t>(c.index_match), c.distance});
+  }
+}
+
+// A rejector's answer: the kept correspondences (only when it converged) and its transform.
+SacResult sac_result(bool converged, const pcl::Correspondences& kept, const Eigen::Matrix4f& t) {
+  SacResult out;
+  out.converged = converged;
+  to_row_major(t, out.transform);
+  out.rotation_det = static_cast<double>(t.topLeftCorner<3, 3>().determinant());
+  if (converged) append_rust(kept, out.kept);
+  return out;
+}
+
 // ICP that also reports how many iterations it ran (a protected member in PCL).
 class CountingIcp : public pcl::IterativeClosestPoint<pcl::PointXYZ, pcl::PointXYZ, double> {
  public:
@@ -160,11 +179,7 @@ rust::Vec<Correspondence> match_features(rust::Slice<const float> source_feature
   pcl::Correspondences corrs;
   est.determineCorrespondences(corrs);
   rust::Vec<Correspondence> out;
-  out.reserve(corrs.size());
-  for (const auto& c : corrs) {
-    out.push_back(Correspondence{static_cast<std::uint32_t>(c.index_query),
-                                 static_cast<std::uint32_t>(c.index_match), c.distance});
-  }
+  append_rust(corrs, out);
   return out;
 }
 
@@ -195,18 +210,7 @@ SacResult reject_sample_consensus(rust::Slice<const float> source_xyz,
   pcl::Indices inliers;
   rej.getInliersIndices(inliers);
 
-  SacResult out;
-  out.converged = !inliers.empty();
-  const Eigen::Matrix4f t = rej.getBestTransformation();
-  to_row_major(t, out.transform);
-  out.rotation_det = static_cast<double>(t.topLeftCorner<3, 3>().determinant());
-  if (out.converged) {
-    for (const auto& c : kept) {
-      out.kept.push_back(Correspondence{static_cast<std::uint32_t>(c.index_query),
-                                        static_cast<std::uint32_t>(c.index_match), c.distance});
-    }
-  }
-  return out;
+  return sac_result(!inliers.empty(), kept, rej.getBestTransformation());
 }
 
 namespace {
@@ -219,26 +223,17 @@ class SweepModel : public pcl::SampleConsensusModelRegistration<pcl::PointXYZ> {
   const std::vector<double>& last_sqr_residuals() const { return error_sqr_dists_; }
 };
 
-SacResult sac_result(const pcl::Correspondences& corrs, const pcl::Indices& inliers,
-                     const Eigen::VectorXf& coefficients) {
-  SacResult out;
-  out.converged = inliers.size() >= 3;
-  Eigen::Matrix4f t = Eigen::Matrix4f::Identity();
-  if (out.converged) {
-    // As CorrespondenceRejectorSampleConsensus::getRemainingCorrespondences.
-    std::unordered_map<int, int> index_to_correspondence;
-    for (int i = 0; i < static_cast<int>(corrs.size()); ++i)
-      index_to_correspondence[corrs[i].index_query] = i;
-    for (const auto& inlier : inliers) {
-      const auto& c = corrs[index_to_correspondence[inlier]];
-      out.kept.push_back(Correspondence{static_cast<std::uint32_t>(c.index_query),
-                                        static_cast<std::uint32_t>(c.index_match), c.distance});
-    }
-    for (int r = 0; r < 4; ++r) t.row(r) = coefficients.segment<4>(4 * r);
-  }
-  to_row_major(t, out.transform);
-  out.rotation_det = static_cast<double>(t.topLeftCorner<3, 3>().determinant());
-  return out;
+// What CorrespondenceRejectorSampleConsensus::getRemainingCorrespondences keeps for RANSAC's
+// inliers (source indices): the correspondence of each, in inlier order.
+pcl::Correspondences kept_correspondences(const pcl::Correspondences& corrs,
+                                          const pcl::Indices& inliers) {
+  std::unordered_map<int, int> index_to_correspondence;
+  for (int i = 0; i < static_cast<int>(corrs.size()); ++i)
+    index_to_correspondence[corrs[i].index_query] = i;
+  pcl::Correspondences kept;
+  kept.reserve(inliers.size());
+  for (const auto& inlier : inliers) kept.push_back(corrs[index_to_correspondence[inlier]]);
+  return kept;
 }
 
 }  // namespace
@@ -341,7 +336,13 @@ rust::Vec<SacResult> reject_sample_consensus_sweep(rust::Slice<const float> sour
   for (const auto& run : runs) {
     inliers.clear();
     if (run.best_count > 0) model->selectWithinDistance(run.coefficients, run.threshold, inliers);
-    out.push_back(sac_result(corrs, inliers, run.coefficients));
+    // As the rejector: fewer than 3 inliers is no consensus (identity, nothing kept).
+    const bool converged = inliers.size() >= 3;
+    Eigen::Matrix4f t = Eigen::Matrix4f::Identity();
+    if (converged) {
+      for (int r = 0; r < 4; ++r) t.row(r) = run.coefficients.segment<4>(4 * r);
+    }
+    out.push_back(sac_result(converged, kept_correspondences(corrs, inliers), t));
   }
   return out;
 }

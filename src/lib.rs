@@ -376,9 +376,7 @@ impl IndexedCloud {
     /// empty cloud or a non-finite coordinate.
     pub fn new(points: &[Point]) -> Result<Self> {
         init();
-        let inner = bridge::upload_cloud(flat(points)).map_err(pcl_err("upload"))?;
-        let len = bridge::cloud_len(&inner);
-        Ok(Self { inner, len })
+        Self::uploaded(bridge::upload_cloud(flat(points)))
     }
 
     /// [`IndexedCloud::new`], and every point's neighbours within `radius` found once (on
@@ -388,8 +386,15 @@ impl IndexedCloud {
     /// would exceed 16 Mi neighbours is searched without them.
     pub fn with_neighbourhoods(points: &[Point], radius: f32, threads: u32) -> Result<Self> {
         init();
-        let inner = bridge::upload_cloud_with_neighbourhoods(flat(points), radius, threads)
-            .map_err(pcl_err("upload"))?;
+        Self::uploaded(bridge::upload_cloud_with_neighbourhoods(
+            flat(points),
+            radius,
+            threads,
+        ))
+    }
+
+    fn uploaded(upload: Result<UniquePtr<bridge::Cloud>, cxx::Exception>) -> Result<Self> {
+        let inner = upload.map_err(pcl_err("upload"))?;
         let len = bridge::cloud_len(&inner);
         Ok(Self { inner, len })
     }

@@ -6,7 +6,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use binpick_cloud::Point;
-use binpick_pcl::{Correspondence, IcpParams, IndexedCloud};
+use binpick_pcl::{Consensus, Correspondence, IcpParams, IndexedCloud};
 
 use crate::deadline::Deadline;
 use crate::error::{Error, Result, pcl};
@@ -286,26 +286,17 @@ fn threshold_sweep(
         &thresholds,
         params.sac_iterations,
     )
-    .map_err(pcl("RANSAC rejection"))?;
+    .map_err(pcl("RANSAC rejection"))?
+    .into_iter()
+    .map(usable_consensus)
+    .collect::<Result<Vec<_>>>()?;
     // Thresholds that keep the same pairs give the same SVD and score: compute those once.
     let mut seen: Vec<(&[Correspondence], Option<InitialAlignment>)> = Vec::new();
     let mut out = Vec::with_capacity(n_th);
     for (run, &threshold_mm) in runs.iter().zip(&params.sac_thresholds_mm) {
-        let consensus = match run {
-            Ok(c) => c,
-            Err(
-                binpick_pcl::Error::NoConsensus { .. }
-                | binpick_pcl::Error::ImproperRotation { .. },
-            ) => {
-                out.push(None);
-                continue;
-            }
-            Err(e) => {
-                return Err(Error::Pcl {
-                    stage: "RANSAC rejection",
-                    source: e.clone(),
-                });
-            }
+        let Some(consensus) = run else {
+            out.push(None);
+            continue;
         };
         let known = seen
             .iter()
@@ -325,6 +316,21 @@ fn threshold_sweep(
         }));
     }
     Ok(out)
+}
+
+/// A rejector run's consensus; `None` when RANSAC found none or its transform is not a
+/// rotation (both mean "no hypothesis"), an error for anything else.
+fn usable_consensus(run: binpick_pcl::Result<Consensus>) -> Result<Option<Consensus>> {
+    match run {
+        Ok(c) => Ok(Some(c)),
+        Err(
+            binpick_pcl::Error::NoConsensus { .. } | binpick_pcl::Error::ImproperRotation { .. },
+        ) => Ok(None),
+        Err(e) => Err(Error::Pcl {
+            stage: "RANSAC rejection",
+            source: e,
+        }),
+    }
 }
 
 /// Steps B-C: SVD on the correspondences RANSAC kept, then the Euclidean score of the model
@@ -380,24 +386,15 @@ fn hypothesis(
         if remaining.len() < 3 {
             break;
         }
-        let consensus = match binpick_pcl::reject_sample_consensus(
+        let run = binpick_pcl::reject_sample_consensus(
             &model.initial_keypoints,
             cluster_kp,
             &remaining,
             threshold_mm as f32,
             params.sac_iterations,
-        ) {
-            Ok(c) => c,
-            Err(
-                binpick_pcl::Error::NoConsensus { .. }
-                | binpick_pcl::Error::ImproperRotation { .. },
-            ) => break,
-            Err(e) => {
-                return Err(Error::Pcl {
-                    stage: "RANSAC rejection",
-                    source: e,
-                });
-            }
+        );
+        let Some(consensus) = usable_consensus(run)? else {
+            break;
         };
         if consensus.kept.len() < 3 {
             break;
