@@ -171,6 +171,9 @@ class CachedNeighbourhoods : public pcl::search::Search<pcl::PointXYZ> {
     return cache;
   }
 
+  // Radius of the cached lists, point units.
+  double radius() const { return radius_; }
+
   int radiusSearch(const PointCloud& cloud, pcl::index_t index, double radius,
                    pcl::Indices& k_indices, std::vector<float>& k_sqr_distances,
                    unsigned int max_nn = 0) const override {
@@ -249,7 +252,7 @@ class CachedNeighbourhoods : public pcl::search::Search<pcl::PointXYZ> {
 
 pcl::search::Search<pcl::PointXYZ>::Ptr radius_search_method(const Cloud::Impl& cloud,
                                                              double radius) {
-  if (cloud.neighbourhoods && radius <= cloud.neighbourhood_radius) {
+  if (cloud.neighbourhoods && radius <= cloud.neighbourhoods->radius()) {
     // Searches are const and the cache is never modified after construction.
     return std::const_pointer_cast<CachedNeighbourhoods>(cloud.neighbourhoods);
   }
@@ -266,14 +269,14 @@ std::unique_ptr<Cloud> upload_cloud_with_neighbourhoods(rust::Slice<const float>
   impl->neighbourhoods =
       CachedNeighbourhoods::build(impl->points, impl->tree, radius, kMaxCachedNeighbours,
                                   threads == 0 ? std::thread::hardware_concurrency() : threads);
-  impl->neighbourhood_radius = impl->neighbourhoods ? static_cast<double>(radius) : 0.0;
   return std::make_unique<Cloud>(std::move(impl));
 }
 
 std::size_t cloud_len(const Cloud& cloud) { return cloud.size(); }
 
 double cloud_neighbourhood_radius(const Cloud& cloud) {
-  return cloud.impl().neighbourhood_radius;
+  const auto& cache = cloud.impl().neighbourhoods;
+  return cache ? cache->radius() : 0.0;
 }
 
 rust::Vec<float> nearest_sq_distances(const Cloud& cloud, rust::Slice<const float> query_xyz) {

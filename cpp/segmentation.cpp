@@ -37,9 +37,9 @@ Clusters euclidean_clusters(const Cloud& cloud, float tolerance, std::uint32_t m
   ec.setMaxClusterSize(static_cast<pcl::uindex_t>(max_size));
   // PCL's clustering re-points its search method at the input, which rebuilds a kd-tree: it
   // gets a tree of its own so the shared cloud is never modified (the cache is not rebuilt).
-  ec.setSearchMethod(c.neighbourhoods && tolerance <= c.neighbourhood_radius
-                         ? radius_search_method(c, tolerance)
-                         : make_tree(c.points));
+  auto search = radius_search_method(c, tolerance);
+  if (search == c.tree) search = make_tree(c.points);
+  ec.setSearchMethod(search);
   ec.setInputCloud(c.points);
   std::vector<pcl::PointIndices> found;
   ec.extract(found);

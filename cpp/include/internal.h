@@ -29,9 +29,8 @@ struct Cloud::Impl {
   PointCloudXYZ::Ptr points;
   pcl::search::KdTree<pcl::PointXYZ>::Ptr tree;
   // Optional (upload_cloud_with_neighbourhoods): the search method for radius searches of
-  // the cloud's own points up to `neighbourhood_radius`; null when not cached.
+  // the cloud's own points up to its radius; null when not cached.
   std::shared_ptr<const CachedNeighbourhoods> neighbourhoods;
-  double neighbourhood_radius = 0.0;
   // Built on first use by ICP (std::call_once keeps a shared Cloud thread-safe).
   mutable std::once_flag batch_once;
   mutable std::shared_ptr<const BatchIndex> batch;
