@@ -14,7 +14,11 @@ use binpick::{Params, RecognitionReport, Recognizer, load_cloud};
 
 use crate::score::{DEFAULT_MATCH_FRACTION, SceneScore, ThesisTable, TruthInstance, score_scene};
 
-fn rigid(m: &binpick_cloud::RowMajor4x4, what: &'static str, message: &str) -> Result<Isometry3<f64>> {
+fn rigid(
+    m: &binpick_cloud::RowMajor4x4,
+    what: &'static str,
+    message: &str,
+) -> Result<Isometry3<f64>> {
     binpick_cloud::pose_from_row_major(m).map_err(|_| input(what, message))
 }
 

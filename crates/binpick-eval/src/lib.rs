@@ -8,7 +8,9 @@ pub mod score;
 pub mod stats;
 pub mod thesis;
 
-pub use dataset::{EvalRun, ReplayResult, SceneResult, dataset_models, evaluate_dataset, replay_scan};
+pub use dataset::{
+    EvalRun, ReplayResult, SceneResult, dataset_models, evaluate_dataset, replay_scan,
+};
 pub use score::{
     DEFAULT_MATCH_FRACTION, DetectionVerdict, SceneScore, ThesisPercents, ThesisTable,
     TruthInstance, Verdict, pose_error_mm, score_scene,

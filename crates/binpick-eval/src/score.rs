@@ -25,7 +25,6 @@
 use nalgebra::{Isometry3, Point3};
 use serde::{Deserialize, Serialize};
 
-
 /// Default correctness threshold: mean model-point distance below this fraction of the
 /// model diameter.
 pub const DEFAULT_MATCH_FRACTION: f64 = 0.10;

@@ -11,7 +11,6 @@ pub fn median_p95(values: &[f64]) -> (f64, f64) {
     (rank(0.5), rank(0.95))
 }
 
-
 #[cfg(test)]
 mod tests {
     use super::*;

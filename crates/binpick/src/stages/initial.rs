@@ -1,24 +1,26 @@
-//! Initial alignment of the model to one cluster (thesis Algorithms 1 and 2, steps 1-2) and
-//! final alignment against the whole scene (steps 3-5).
+//! Stage 4, the initial alignment of the model to one cluster (thesis Algorithms 1 and 2,
+//! steps 1b-2): correspondences, the RANSAC threshold sweep with SVD and Euclidean score, and
+//! the choice of the best initial alignment.
+
+use std::collections::HashSet;
 
 use nalgebra::Isometry3;
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
 
 use binpick_cloud::Point;
-use binpick_pcl::{Consensus, Correspondence, IcpParams, IndexedCloud};
+use binpick_pcl::{Consensus, Correspondence};
 
 use crate::deadline::Deadline;
-use crate::error::{Error, Result, pcl};
-use crate::features::{RadiusFeatures, feature_surface, fpfh_for_radius, keypoints};
-use crate::model::PreparedModel;
-use crate::params::{Algorithm, Params};
-use crate::pose::{from_mat4, to_mat4};
-use crate::validate::{NearestIndex, euclidean_score, outlier_percent};
+use crate::error::{Error, Result, input, pcl};
+use crate::params::{Algorithm, ConsensusConfig};
+use crate::result::SearchStop;
+use crate::stages::features::ClusterFeatures;
+use crate::stages::model::PreparedModel;
+use crate::validate::{NearestIndex, euclidean_score};
 
-/// The best initial alignment of a cluster (thesis 4.1 / 4.2 step 1b-D).
+/// One initial alignment of a cluster (thesis 4.1 / 4.2 step 1b-D).
 #[derive(Clone, Debug, PartialEq)]
-pub struct InitialAlignment {
+pub(crate) struct InitialAlignment {
     /// Model -> scene.
     pub pose: Isometry3<f64>,
     /// Euclidean score (3.1.1) of the model keypoints against the cluster keypoints, mm^2.
@@ -32,83 +34,51 @@ pub struct InitialAlignment {
     pub sac_inliers: usize,
 }
 
-/// How many of a cluster's best hypotheses are also tried composed with the model's
-/// near-symmetries.
-const SYMMETRY_EXPANDED: usize = 8;
-
-/// One hypothesis of the threshold sweep; `order` breaks score ties (first in loop order wins).
-struct Hypothesis {
-    order: usize,
-    alignment: InitialAlignment,
-}
-
-/// The uniform keypoints of a cluster (or of a sphere, remainder or split of one) and their
-/// FPFH descriptors for every radius (thesis 4.1 step 1a-b).
+/// A hypothesis of the sweep; `order` breaks score ties (first in loop order wins).
 #[derive(Clone, Debug)]
-pub struct ClusterFeatures {
-    pub keypoints: Vec<Point>,
-    /// One entry per radius of `Params::fpfh_radii_mm`, keypoint indices into `keypoints`.
-    pub features: Vec<RadiusFeatures>,
+pub(crate) struct Hypothesis {
+    order: usize,
+    pub alignment: InitialAlignment,
 }
 
-impl ClusterFeatures {
-    /// Keypoints at the initial leaf and FPFH per radius (radii in parallel, PCL's OpenMP at
-    /// one thread). `Ok(None)` with fewer than 3 keypoints.
-    pub(crate) fn new(
-        cluster: &[Point],
-        params: &Params,
-        deadline: &Deadline,
-    ) -> Result<Option<Self>> {
-        let keypoint_idx = keypoints(cluster, params.initial_leaf_mm)?;
-        if keypoint_idx.len() < 3 {
-            return Ok(None);
-        }
-        let keypoints: Vec<Point> = keypoint_idx.iter().map(|&i| cluster[i as usize]).collect();
-        let (surface, surface_kp) = feature_surface(cluster, &keypoint_idx, &keypoints, params)?;
-        let features = params
-            .fpfh_radii_mm
-            .par_iter()
-            .map(|&r| {
-                deadline.check("cluster FPFH")?;
-                fpfh_for_radius(
-                    &surface,
-                    &surface_kp,
-                    r,
-                    params,
-                    params.scene_viewpoint_mm,
-                    1,
-                )
-            })
-            .collect::<Result<_>>()?;
-        Ok(Some(Self {
-            keypoints,
-            features,
-        }))
+/// The correspondences of one FPFH radius (Algorithm 1) or of all radii merged (Algorithm 2),
+/// in keypoint indices: model initial keypoints -> cluster keypoints.
+pub(crate) struct CorrespondenceSet {
+    /// Index into `fpfh_radii_mm`; None for the merged set.
+    radius: Option<usize>,
+    pairs: Vec<Correspondence>,
+}
+
+/// The cluster's keypoints with a nearest-neighbour index, what the Euclidean score reads.
+pub(crate) struct ClusterKeypoints<'a> {
+    points: &'a [Point],
+    index: NearestIndex,
+}
+
+impl<'a> ClusterKeypoints<'a> {
+    pub(crate) fn new(features: &'a ClusterFeatures) -> Result<Self> {
+        let points = &features.keypoints;
+        let index = NearestIndex::new(points).map_err(|e| input("cluster", e.to_string()))?;
+        Ok(Self { points, index })
     }
 }
 
-/// Thesis 4.1 / 4.2 steps 1b-D over a cluster (or, outside thesis_strict mode, a sphere,
-/// remainder or split of one): every hypothesis of the sweep (one per correspondence set and
-/// threshold that produced a transform), best Euclidean score first, so the first is the
-/// thesis's initial alignment; ties keep the loop order (earlier radius and threshold first).
-pub(crate) fn initial_hypotheses(
+/// Step 1b i-iii: FPFH matches per radius (model keypoints -> cluster keypoints); with
+/// Algorithm 2 all radii merged, keeping for each model keypoint the match with the smallest
+/// descriptor distance (earlier radius on ties).
+pub(crate) fn correspondences(
     model: &PreparedModel,
     cluster: &ClusterFeatures,
-    params: &Params,
-    deadline: &Deadline,
-) -> Result<Vec<InitialAlignment>> {
-    let kp = &cluster.keypoints;
-    let world = NearestIndex::new(kp).map_err(|e| crate::error::input("cluster", e.to_string()))?;
-
-    // (radius index or None, correspondences in keypoint indices)
-    let mut sets: Vec<(Option<usize>, Vec<Correspondence>)> = Vec::new();
+    algorithm: Algorithm,
+) -> Result<Vec<CorrespondenceSet>> {
+    let mut sets = Vec::new();
     for (r, (m, c)) in model.features.iter().zip(&cluster.features).enumerate() {
         if c.descriptors.is_empty() {
             continue;
         }
         let corrs = binpick_pcl::match_features(&m.descriptors, &c.descriptors)
             .map_err(pcl("feature matching"))?;
-        let mapped = corrs
+        let pairs = corrs
             .into_iter()
             .map(|k| Correspondence {
                 query: m.keypoint[k.query as usize],
@@ -116,76 +86,112 @@ pub(crate) fn initial_hypotheses(
                 distance: k.distance,
             })
             .collect();
-        sets.push((Some(r), mapped));
+        sets.push(CorrespondenceSet {
+            radius: Some(r),
+            pairs,
+        });
     }
-    if params.algorithm == Algorithm::MergedFpfh {
-        sets = vec![(
-            None,
-            merge_best_per_model_keypoint(sets, model.initial_keypoints.len()),
-        )];
+    if algorithm == Algorithm::MergedFpfh {
+        let mut best: Vec<Option<Correspondence>> = vec![None; model.initial_keypoints.len()];
+        for c in sets.into_iter().flat_map(|s| s.pairs) {
+            let slot = &mut best[c.query as usize];
+            if slot.is_none_or(|b| c.distance < b.distance) {
+                *slot = Some(c);
+            }
+        }
+        sets = vec![CorrespondenceSet {
+            radius: None,
+            pairs: best.into_iter().flatten().collect(),
+        }];
     }
+    Ok(sets)
+}
 
-    let n_th = params.sac_thresholds_mm.len();
+/// Steps A-C for every (correspondence set, threshold) pair: RANSAC rejection, SVD on the kept
+/// pairs, Euclidean score. Best score first; ties keep the loop order (earlier radius and
+/// threshold first), so the first is the thesis's initial alignment (step D).
+///
+/// With shared draws (the thesis) one PCL rejector per threshold runs on the correspondences
+/// as found; PCL seeds every run alike, so the runs share their draws and one pass per set
+/// computes them all. With independent draws every pair draws from its own permutation and
+/// may try several consensus sets (`consensus_modes`).
+pub(crate) fn threshold_sweep(
+    model: &PreparedModel,
+    cluster: &ClusterKeypoints,
+    sets: &[CorrespondenceSet],
+    cfg: &ConsensusConfig,
+    radii_mm: &[f64],
+    deadline: &Deadline,
+) -> Result<Vec<Hypothesis>> {
+    let n_th = cfg.sac_thresholds_mm.len();
     let label = |radius: Option<usize>, t: usize, a: InitialAlignment| Hypothesis {
         order: radius.unwrap_or(0) * n_th + t,
         alignment: InitialAlignment {
-            fpfh_radius_mm: radius.map(|r| params.fpfh_radii_mm[r]),
+            fpfh_radius_mm: radius.map(|r| radii_mm[r]),
             ..a
         },
     };
-    let hypotheses: Vec<Option<Hypothesis>> = if params.thesis_strict {
-        // The thesis's sweep (step iii): one PCL rejector per threshold on the correspondences
-        // as found. PCL seeds every run alike, so the runs share their draws and one pass per
-        // correspondence set computes them all.
-        sets.par_iter()
-            .map(|(radius, corrs)| {
-                deadline.check("RANSAC threshold sweep")?;
-                Ok(threshold_sweep(model, kp, &world, corrs, params)?
-                    .into_iter()
-                    .enumerate()
-                    .map(|(t, a)| a.map(|a| label(*radius, t, a)))
-                    .collect::<Vec<_>>())
-            })
-            .collect::<Result<Vec<_>>>()?
-            .into_iter()
-            .flatten()
-            .collect()
-    } else {
-        // Every (correspondence set, SAC threshold) pair is an independent hypothesis, its
-        // RANSAC draws from a permutation stream keyed by (radius, threshold).
+    let hypotheses: Vec<Option<Hypothesis>> = if cfg.independent_draws {
         let jobs: Vec<(usize, usize)> = (0..sets.len())
             .flat_map(|s| (0..n_th).map(move |t| (s, t)))
             .collect();
         jobs.par_iter()
             .map(|&(s, t)| {
                 deadline.check("RANSAC threshold sweep")?;
-                let (radius, corrs) = &sets[s];
-                let stream = (radius.unwrap_or(0) * n_th + t) as u64;
-                hypothesis(
-                    model,
-                    kp,
-                    &world,
-                    &shuffled(corrs, stream),
-                    params.sac_thresholds_mm[t],
-                    params,
-                )
-                .map(|h| h.map(|a| label(*radius, t, a)))
+                let set = &sets[s];
+                let stream = (set.radius.unwrap_or(0) * n_th + t) as u64;
+                let draws = shuffled(&set.pairs, stream);
+                let threshold_mm = cfg.sac_thresholds_mm[t];
+                consensus_sets(model, cluster, &draws, threshold_mm, cfg)
+                    .map(|h| h.map(|a| label(set.radius, t, a)))
             })
             .collect::<Result<_>>()?
+    } else {
+        sets.par_iter()
+            .map(|set| {
+                deadline.check("RANSAC threshold sweep")?;
+                Ok(shared_draw_sweep(model, cluster, &set.pairs, cfg)?
+                    .into_iter()
+                    .enumerate()
+                    .map(|(t, a)| a.map(|a| label(set.radius, t, a)))
+                    .collect::<Vec<_>>())
+            })
+            .collect::<Result<Vec<_>>>()?
+            .into_iter()
+            .flatten()
+            .collect()
     };
     let mut all: Vec<Hypothesis> = hypotheses.into_iter().flatten().collect();
-    all.sort_by(|a, b| {
+    sort_best_first(&mut all);
+    Ok(all)
+}
+
+fn sort_best_first(hypotheses: &mut [Hypothesis]) {
+    hypotheses.sort_by(|a, b| {
         a.alignment
             .score
             .total_cmp(&b.alignment.score)
             .then(a.order.cmp(&b.order))
     });
-    // The best few hypotheses, each composed with the model's near-symmetries (a flipped match
-    // T of a nearly symmetric part becomes T * S, close to the true pose), scored the same way.
-    let stride = params.fpfh_radii_mm.len() * n_th;
-    let flips: Vec<Hypothesis> = all
+}
+
+/// Extension, near-symmetry candidates: the best `symmetry_expanded` hypotheses, each
+/// composed with the model's near-symmetries (a flipped match T of a nearly symmetric part
+/// becomes T * S, close to the true pose), scored the same way and merged in.
+pub(crate) fn with_symmetry_candidates(
+    mut hypotheses: Vec<Hypothesis>,
+    model: &PreparedModel,
+    cluster: &ClusterKeypoints,
+    cfg: &ConsensusConfig,
+    radii: usize,
+) -> Vec<Hypothesis> {
+    if model.near_symmetries.is_empty() {
+        return hypotheses;
+    }
+    let stride = radii * cfg.sac_thresholds_mm.len();
+    let flips: Vec<Hypothesis> = hypotheses
         .iter()
-        .take(SYMMETRY_EXPANDED)
+        .take(cfg.symmetry_expanded)
         .flat_map(|h| {
             model.near_symmetries.iter().enumerate().map(|(k, s)| {
                 let pose = h.alignment.pose * s;
@@ -193,34 +199,52 @@ pub(crate) fn initial_hypotheses(
                     order: stride * (k + 1) + h.order,
                     alignment: InitialAlignment {
                         pose,
-                        score: euclidean_score(&world, &model.initial_keypoints, &pose),
+                        score: euclidean_score(&cluster.index, &model.initial_keypoints, &pose),
                         ..h.alignment.clone()
                     },
                 }
             })
         })
         .collect();
-    all.extend(flips);
-    all.sort_by(|a, b| {
-        a.alignment
-            .score
-            .total_cmp(&b.alignment.score)
-            .then(a.order.cmp(&b.order))
-    });
-    Ok(all.into_iter().map(|h| h.alignment).collect())
+    hypotheses.extend(flips);
+    sort_best_first(&mut hypotheses);
+    hypotheses
 }
 
-/// All hypotheses for a whole cluster, without a time budget (diagnostics, tests).
-pub fn initial_hypotheses_unbounded(
-    model: &PreparedModel,
-    cluster: &[Point],
-    params: &Params,
-) -> Result<Vec<InitialAlignment>> {
-    let deadline = Deadline::new(None);
-    match ClusterFeatures::new(cluster, params, &deadline)? {
-        Some(cf) => initial_hypotheses(model, &cf, params, &deadline),
-        None => Ok(Vec::new()),
+/// Step D and step 2: the best initial alignment, if its Euclidean score is under
+/// `initial_score_max`; with the retry extension (`final_candidates` > 1) also the next
+/// ones under it, best first, each differing from every earlier one by more than
+/// `distinct_shift_diameters` model diameters or `distinct_angle_deg`.
+pub(crate) fn best_initial<'h>(
+    hypotheses: &'h [Hypothesis],
+    cfg: &ConsensusConfig,
+    model_diameter_mm: f64,
+) -> std::result::Result<Vec<&'h InitialAlignment>, SearchStop> {
+    let Some(best) = hypotheses.first() else {
+        return Err(SearchStop::NoConsensus);
+    };
+    if best.alignment.score >= cfg.initial_score_max {
+        return Err(SearchStop::InitialRejected {
+            score: best.alignment.score,
+            max: cfg.initial_score_max,
+        });
     }
+    let min_shift = cfg.distinct_shift_diameters * model_diameter_mm;
+    let min_angle = cfg.distinct_angle_deg.to_radians();
+    let mut out: Vec<&InitialAlignment> = Vec::new();
+    for h in hypotheses.iter().map(|h| &h.alignment) {
+        if out.len() >= cfg.final_candidates as usize || h.score >= cfg.initial_score_max {
+            break;
+        }
+        let distinct = out.iter().all(|o| {
+            (o.pose.translation.vector - h.pose.translation.vector).norm() > min_shift
+                || o.pose.rotation.angle_to(&h.pose.rotation) > min_angle
+        });
+        if distinct {
+            out.push(h);
+        }
+    }
+    Ok(out)
 }
 
 /// The correspondences in a pseudo-random order fixed by `stream`. PCL seeds every RANSAC
@@ -228,7 +252,7 @@ pub fn initial_hypotheses_unbounded(
 /// same sample triples; the thesis treats each run as an independent random draw (3.4.2.5).
 /// A fixed permutation per (radius, threshold) gives every run its own samples while keeping
 /// results deterministic.
-pub fn shuffled(corrs: &[Correspondence], stream: u64) -> Vec<Correspondence> {
+fn shuffled(corrs: &[Correspondence], stream: u64) -> Vec<Correspondence> {
     // SplitMix64 (Steele et al. 2014), seeded per stream.
     let mut state = 0x9E37_79B9_7F4A_7C15u64 ^ stream.wrapping_mul(0xD1B5_4A32_D192_ED03);
     let mut next = move || {
@@ -246,45 +270,26 @@ pub fn shuffled(corrs: &[Correspondence], stream: u64) -> Vec<Correspondence> {
     out
 }
 
-/// Algorithm 2 step 1b-iii: all radii's correspondences in one set, keeping for each model
-/// keypoint the match with the smallest descriptor distance (earlier radius on ties).
-fn merge_best_per_model_keypoint(
-    sets: Vec<(Option<usize>, Vec<Correspondence>)>,
-    n_model: usize,
-) -> Vec<Correspondence> {
-    let mut best: Vec<Option<Correspondence>> = vec![None; n_model];
-    for (_, corrs) in sets {
-        for c in corrs {
-            let slot = &mut best[c.query as usize];
-            if slot.is_none_or(|b| c.distance < b.distance) {
-                *slot = Some(c);
-            }
-        }
-    }
-    best.into_iter().flatten().collect()
-}
-
-/// Steps A-C for every threshold of the sweep on one correspondence set (thesis_strict):
-/// PCL's rejector per threshold (computed in one pass), SVD on the kept pairs, Euclidean
-/// score. One entry per threshold, `None` where nothing yields a proper rotation.
-fn threshold_sweep(
+/// Steps A-C for every threshold of the sweep on one correspondence set, with PCL's shared
+/// draws: PCL's rejector per threshold (computed in one pass), SVD on the kept pairs,
+/// Euclidean score. One entry per threshold, `None` where nothing yields a proper rotation.
+fn shared_draw_sweep(
     model: &PreparedModel,
-    cluster_kp: &[Point],
-    world: &NearestIndex,
+    cluster: &ClusterKeypoints,
     corrs: &[Correspondence],
-    params: &Params,
+    cfg: &ConsensusConfig,
 ) -> Result<Vec<Option<InitialAlignment>>> {
-    let n_th = params.sac_thresholds_mm.len();
+    let n_th = cfg.sac_thresholds_mm.len();
     if corrs.len() < 3 {
         return Ok(vec![None; n_th]);
     }
-    let thresholds: Vec<f32> = params.sac_thresholds_mm.iter().map(|&t| t as f32).collect();
+    let thresholds: Vec<f32> = cfg.sac_thresholds_mm.iter().map(|&t| t as f32).collect();
     let runs = binpick_pcl::reject_sample_consensus_sweep(
         &model.initial_keypoints,
-        cluster_kp,
+        cluster.points,
         corrs,
         &thresholds,
-        params.sac_iterations,
+        cfg.sac_iterations,
     )
     .map_err(pcl("RANSAC rejection"))?
     .into_iter()
@@ -293,7 +298,7 @@ fn threshold_sweep(
     // Thresholds that keep the same pairs give the same SVD and score: compute those once.
     let mut seen: Vec<(&[Correspondence], Option<InitialAlignment>)> = Vec::new();
     let mut out = Vec::with_capacity(n_th);
-    for (run, &threshold_mm) in runs.iter().zip(&params.sac_thresholds_mm) {
+    for (run, &threshold_mm) in runs.iter().zip(&cfg.sac_thresholds_mm) {
         let Some(consensus) = run else {
             out.push(None);
             continue;
@@ -305,7 +310,7 @@ fn threshold_sweep(
         let alignment = match known {
             Some(a) => a,
             None => {
-                let a = svd_and_score(model, cluster_kp, world, &consensus.kept)?;
+                let a = svd_and_score(model, cluster, &consensus.kept)?;
                 seen.push((&consensus.kept, a.clone()));
                 a
             }
@@ -316,6 +321,52 @@ fn threshold_sweep(
         }));
     }
     Ok(out)
+}
+
+/// Steps A-C for one threshold with independent draws: RANSAC rejection, SVD on the kept
+/// pairs, Euclidean score. With `consensus_modes` > 1 (the second consensus set extension),
+/// RANSAC runs again on the correspondences the previous consensus did not keep (sequential
+/// RANSAC), so a second, smaller consensus - typically the true pose of a nearly symmetric
+/// part whose flipped pose gathers more matches - is scored too; the best Euclidean score
+/// wins. `Ok(None)` when nothing yields a proper rotation.
+fn consensus_sets(
+    model: &PreparedModel,
+    cluster: &ClusterKeypoints,
+    corrs: &[Correspondence],
+    threshold_mm: f64,
+    cfg: &ConsensusConfig,
+) -> Result<Option<InitialAlignment>> {
+    let mut remaining = corrs.to_vec();
+    let mut best: Option<InitialAlignment> = None;
+    for _ in 0..cfg.consensus_modes {
+        if remaining.len() < 3 {
+            break;
+        }
+        let run = binpick_pcl::reject_sample_consensus(
+            &model.initial_keypoints,
+            cluster.points,
+            &remaining,
+            threshold_mm as f32,
+            cfg.sac_iterations,
+        );
+        let Some(consensus) = usable_consensus(run)? else {
+            break;
+        };
+        if consensus.kept.len() < 3 {
+            break;
+        }
+        let kept: HashSet<u32> = consensus.kept.iter().map(|c| c.query).collect();
+        remaining.retain(|c| !kept.contains(&c.query));
+        if let Some(a) = svd_and_score(model, cluster, &consensus.kept)?
+            && best.as_ref().is_none_or(|b| a.score < b.score)
+        {
+            best = Some(InitialAlignment {
+                sac_threshold_mm: threshold_mm,
+                ..a
+            });
+        }
+    }
+    Ok(best)
 }
 
 /// A rejector run's consensus; `None` when RANSAC found none or its transform is not a
@@ -337,14 +388,13 @@ fn usable_consensus(run: binpick_pcl::Result<Consensus>) -> Result<Option<Consen
 /// keypoints placed by it. `Ok(None)` when fewer than 3 pairs or no proper rotation.
 fn svd_and_score(
     model: &PreparedModel,
-    cluster_kp: &[Point],
-    world: &NearestIndex,
+    cluster: &ClusterKeypoints,
     kept: &[Correspondence],
 ) -> Result<Option<InitialAlignment>> {
     if kept.len() < 3 {
         return Ok(None);
     }
-    let m = match binpick_pcl::estimate_svd(&model.initial_keypoints, cluster_kp, kept) {
+    let m = match binpick_pcl::estimate_svd(&model.initial_keypoints, cluster.points, kept) {
         Ok(m) => m,
         Err(binpick_pcl::Error::ImproperRotation { .. }) => return Ok(None),
         Err(e) => {
@@ -354,217 +404,14 @@ fn svd_and_score(
             });
         }
     };
-    let Some(pose) = from_mat4(&m) else {
+    let Some(pose) = binpick_pcl::rigid_pose(&m) else {
         return Ok(None);
     };
     Ok(Some(InitialAlignment {
         pose,
-        score: euclidean_score(world, &model.initial_keypoints, &pose),
+        score: euclidean_score(&cluster.index, &model.initial_keypoints, &pose),
         fpfh_radius_mm: None,
         sac_threshold_mm: 0.0,
         sac_inliers: kept.len(),
     }))
-}
-
-/// Steps A-C for one threshold outside thesis_strict mode: RANSAC rejection, SVD on the
-/// kept pairs, Euclidean score. With `consensus_modes` > 1, RANSAC runs again on the
-/// correspondences the previous consensus did not keep (sequential RANSAC), so a second,
-/// smaller consensus - typically the true pose of a nearly symmetric part whose flipped pose
-/// gathers more matches - is scored too; the best Euclidean score wins. `Ok(None)` when
-/// nothing yields a proper rotation.
-fn hypothesis(
-    model: &PreparedModel,
-    cluster_kp: &[Point],
-    world: &NearestIndex,
-    corrs: &[Correspondence],
-    threshold_mm: f64,
-    params: &Params,
-) -> Result<Option<InitialAlignment>> {
-    let mut remaining = corrs.to_vec();
-    let mut best: Option<InitialAlignment> = None;
-    for _ in 0..params.consensus_modes.max(1) {
-        if remaining.len() < 3 {
-            break;
-        }
-        let run = binpick_pcl::reject_sample_consensus(
-            &model.initial_keypoints,
-            cluster_kp,
-            &remaining,
-            threshold_mm as f32,
-            params.sac_iterations,
-        );
-        let Some(consensus) = usable_consensus(run)? else {
-            break;
-        };
-        if consensus.kept.len() < 3 {
-            break;
-        }
-        let kept: std::collections::HashSet<u32> = consensus.kept.iter().map(|c| c.query).collect();
-        remaining.retain(|c| !kept.contains(&c.query));
-        if let Some(a) = svd_and_score(model, cluster_kp, world, &consensus.kept)?
-            && best.as_ref().is_none_or(|b| a.score < b.score)
-        {
-            best = Some(InitialAlignment {
-                sac_threshold_mm: threshold_mm,
-                ..a
-            });
-        }
-    }
-    Ok(best)
-}
-
-/// The scene at the final leaf, uploaded once per recognition and shared by every ICP and
-/// every final score.
-pub(crate) struct FinalWorld {
-    pub pcl: IndexedCloud,
-    pub index: NearestIndex,
-    /// The world at scan resolution, for the fine ICP pass (`Params::icp_refine`).
-    pub dense: Option<IndexedCloud>,
-}
-
-impl FinalWorld {
-    pub(crate) fn new(world: &[Point], params: &Params) -> Result<Self> {
-        let idx = keypoints(world, params.final_leaf_mm)?;
-        let pts: Vec<Point> = idx.iter().map(|&i| world[i as usize]).collect();
-        let dense = if params.icp_refine && !params.thesis_strict {
-            Some(IndexedCloud::new(world).map_err(pcl("scene upload"))?)
-        } else {
-            None
-        };
-        Ok(Self {
-            pcl: IndexedCloud::new(&pts).map_err(pcl("final keypoints upload"))?,
-            index: NearestIndex::new(&pts)
-                .map_err(|e| crate::error::input("scene", e.to_string()))?,
-            dense,
-        })
-    }
-}
-
-/// The fine ICP pass runs for candidates whose percent of outliers is below this multiple
-/// of the final threshold.
-const REFINE_BELOW_FACTOR: f64 = 2.0;
-
-/// What ICP did for one detection.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct IcpReport {
-    pub converged: bool,
-    pub iterations: u32,
-    /// PCL's fitness: mean squared distance of matched points, mm^2 (None if ICP failed or
-    /// matched nothing).
-    pub fitness_mm2: Option<f64>,
-    /// Whether the ICP pose scored better than the initial one and was adopted (step 3d).
-    pub adopted: bool,
-    /// Set when PCL's ICP failed; the initial pose is kept.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub error: Option<String>,
-}
-
-/// Result of the final alignment (thesis 4.1 step 3).
-#[derive(Clone, Debug, PartialEq)]
-pub struct FinalAlignment {
-    pub pose: Isometry3<f64>,
-    /// Percent of outliers (3.1.2) of the final pose.
-    pub score: f64,
-    /// Percent of outliers of the initial pose.
-    pub score_before_icp: f64,
-    pub icp: IcpReport,
-}
-
-/// Step 3: ICP of the model's final keypoints onto the scene's (the whole scene, not the
-/// cluster), then the percent-of-outliers score; the ICP pose is adopted only if it scores
-/// better (3d). The returned pose is final x initial (step 5).
-pub(crate) fn final_alignment(
-    model: &PreparedModel,
-    world: &FinalWorld,
-    initial: &Isometry3<f64>,
-    params: &Params,
-) -> FinalAlignment {
-    let d = params.outlier_distance_mm;
-    let kp = &model.final_keypoints;
-    let before = outlier_percent(&world.index, kp, initial, d);
-    let mut result = FinalAlignment {
-        pose: *initial,
-        score: before,
-        score_before_icp: before,
-        icp: IcpReport {
-            converged: false,
-            iterations: 0,
-            fitness_mm2: None,
-            adopted: false,
-            error: None,
-        },
-    };
-    let icp = world.pcl.icp(
-        kp,
-        &IcpParams {
-            initial: to_mat4(initial),
-            max_correspondence_distance: params.icp_max_correspondence_mm,
-            max_iterations: params.icp_iterations,
-            transformation_epsilon: params.icp_transformation_epsilon,
-            batch_correspondences: true,
-            relative_mse: params.effective_icp_relative_mse(),
-        },
-    );
-    match icp {
-        Ok(out) => {
-            result.icp.converged = out.converged;
-            result.icp.iterations = out.iterations;
-            result.icp.fitness_mm2 =
-                (out.fitness.is_finite() && out.fitness < 1e300).then_some(out.fitness);
-            if let Some(pose) = from_mat4(&out.transform) {
-                result.icp.adopted = adopt_if_better(world, kp, d, &mut result, pose);
-            }
-        }
-        Err(e) => result.icp.error = Some(e.to_string()),
-    }
-    // Fine pass, only for a part that is accepted or nearly so (within twice the final
-    // threshold; the fine fit can bring a noisy near-miss under it): the model at scan resolution onto
-    // the world at scan resolution, correspondences within two resolutions. Point-to-point
-    // ICP between two 2 mm keypoint samplings has ripples at the keypoint spacing that can stop
-    // it short along a part's weakly constrained directions (a bent sheet's bend line).
-    if let Some(dense) = &world.dense
-        && result.score < REFINE_BELOW_FACTOR * params.final_score_max_pct
-    {
-        let fine = dense.icp(
-            &model.cloud,
-            &IcpParams {
-                initial: to_mat4(&result.pose),
-                max_correspondence_distance: 2.0 * params.resolution_mm,
-                max_iterations: params.icp_iterations,
-                transformation_epsilon: params.icp_transformation_epsilon,
-                batch_correspondences: true,
-                relative_mse: 0.0,
-            },
-        );
-        if let Ok(out) = fine {
-            result.icp.iterations += out.iterations;
-            if let Some(pose) = from_mat4(&out.transform) {
-                result.icp.adopted |= adopt_if_better(world, kp, d, &mut result, pose);
-            }
-        }
-    }
-    result
-}
-
-/// Step 3d, "if the score is better than before, then transform": adopts `pose` when its
-/// percent of outliers is lower, or equal with a lower Euclidean score (3.1.1) of the same
-/// keypoints (the percent of outliers saturates at 0 for any pose within the outlier
-/// distance, and ICP minimises the Euclidean score).
-fn adopt_if_better(
-    world: &FinalWorld,
-    kp: &[Point],
-    d: f64,
-    result: &mut FinalAlignment,
-    pose: Isometry3<f64>,
-) -> bool {
-    let after = outlier_percent(&world.index, kp, &pose, d);
-    let better = after < result.score
-        || (after == result.score
-            && euclidean_score(&world.index, kp, &pose)
-                < euclidean_score(&world.index, kp, &result.pose));
-    if better {
-        result.pose = pose;
-        result.score = after;
-    }
-    better
 }
