@@ -332,3 +332,64 @@ impl RecognitionReport {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion, Vector3};
+
+    fn detection() -> Detection {
+        let pose = Isometry3::from_parts(
+            Translation3::new(1.0, -2.0, 3.5),
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.3),
+        );
+        Detection {
+            rank: 1,
+            pose,
+            initial_pose: Isometry3::identity(),
+            initial_score: 2.5,
+            final_score: 1.0,
+            score_before_icp: 3.0,
+            cluster: 4,
+            cluster_round: 0,
+            fpfh_radius_mm: Some(10.0),
+            sac_threshold_mm: 3.0,
+            sac_inliers: 40,
+            icp: IcpReport {
+                converged: true,
+                iterations: 7,
+                fitness_mm2: Some(0.2),
+                adopted: true,
+                error: None,
+            },
+            height_mm: 12.0,
+            rank_reason: "best".into(),
+        }
+    }
+
+    #[test]
+    fn detection_json_keeps_the_record_fields_and_round_trips() {
+        let d = detection();
+        let v = serde_json::to_value(&d).unwrap();
+        for key in [
+            "rank",
+            "pose",
+            "translation",
+            "quaternion_wxyz",
+            "final_score",
+            "icp",
+        ] {
+            assert!(v.get(key).is_some(), "{key} missing");
+        }
+        assert_eq!(v["pose"].as_array().unwrap().len(), 16);
+        assert_eq!(v["translation"][2], 3.5);
+        let back: Detection = serde_json::from_value(v.clone()).unwrap();
+        assert!((back.pose.translation.vector - d.pose.translation.vector).norm() < 1e-12);
+        assert_eq!(back.icp, d.icp);
+        // A record written before `initial_pose` existed still loads.
+        let mut old = v;
+        old.as_object_mut().unwrap().remove("initial_pose");
+        let back: Detection = serde_json::from_value(old).unwrap();
+        assert_eq!(back.initial_pose, back.pose);
+    }
+}

@@ -462,4 +462,35 @@ mod tests {
             assert!(e.to_string().contains(field));
         }
     }
+
+    #[test]
+    fn consensus_modes_is_checked_against_its_declared_range() {
+        let mut p = Params::default();
+        p.consensus.consensus_modes = 0;
+        let e = p.validate().unwrap_err();
+        assert_eq!(e.field, "consensus_modes");
+        assert_eq!(e.expected, "expected 1-10");
+        p.consensus.consensus_modes = 11;
+        assert_eq!(p.validate().unwrap_err().field, "consensus_modes");
+        p.consensus.consensus_modes = 10;
+        p.validate().unwrap();
+    }
+
+    #[test]
+    fn thesis_strict_switches_every_extension_off() {
+        let p = Params {
+            thesis_strict: true,
+            ..Params::default()
+        }
+        .stages();
+        assert!(!p.consensus.independent_draws && !p.consensus.symmetry_candidates);
+        assert_eq!(
+            (p.consensus.consensus_modes, p.consensus.final_candidates),
+            (1, 1)
+        );
+        assert!(!p.icp.icp_refine && p.icp.icp_relative_mse == 0.0);
+        assert!(!p.pile.touching_parts && !p.pile.tighter_recluster && !p.pile.sphere_search);
+        assert!(!p.ranking.suppress_duplicates);
+        assert_eq!(Params::default().stages(), Params::default());
+    }
 }
