@@ -19,7 +19,7 @@ use crate::deadline::{Deadline, ms};
 use crate::engines::cluster_search::ClusterSearch;
 use crate::error::{Error, Result};
 use crate::params::Params;
-use crate::result::{Recognition, Timings};
+use crate::result::{ClusterReport, Detection, Recognition, Timings};
 use crate::stages::cluster::{euclidean_clusters, size_range};
 use crate::stages::final_alignment::FinalWorld;
 use crate::stages::model::PreparedModel;
@@ -163,36 +163,45 @@ impl Recognizer {
             world: &final_world,
             deadline,
         };
-        let outcomes = engine.run(&world, &clusters)?;
+        let found = engine.run(&world, &clusters)?;
+        timings.initial_alignment_ms = found.initial_ms;
+        timings.final_alignment_ms = found.final_ms;
 
         // Drop duplicates of one instance (extension), rank for picking (1.2 step 3).
         lap = Instant::now();
-        let mut detections = Vec::new();
-        let mut cluster_reports = Vec::new();
-        for o in outcomes {
-            timings.initial_alignment_ms += o.initial_ms;
-            timings.final_alignment_ms += o.final_ms;
-            cluster_reports.push(o.report);
-            detections.extend(o.detections);
-        }
-        let found = detections.len();
-        if p.ranking.suppress_duplicates {
-            let d = p.validation.outlier_distance_mm;
-            let overlap = p.ranking.duplicate_overlap;
-            detections = suppress_duplicates(detections, &model.final_keypoints, d, overlap);
-        }
-        for c in &mut cluster_reports {
-            c.detections = detections.iter().filter(|d| d.cluster == c.index).count();
-        }
-        rank_detections(&mut detections, p.ranking.rank_score_band_pct);
+        let mut cluster_reports = found.clusters;
+        let (detections, duplicates) = self.rank(found.detections, &mut cluster_reports);
         timings.ranking_ms = ms(lap.elapsed());
         timings.total_ms = ms(deadline.elapsed());
         Ok(Recognition {
-            duplicates_suppressed: found - detections.len(),
+            duplicates_suppressed: duplicates,
             detections,
             preprocess: preprocessed,
             clusters: cluster_reports,
             timings,
         })
+    }
+
+    /// Duplicate suppression (when on), the per-cluster counts that survive it, and the pick
+    /// ranking; also returns how many duplicates were dropped.
+    fn rank(
+        &self,
+        mut detections: Vec<Detection>,
+        clusters: &mut [ClusterReport],
+    ) -> (Vec<Detection>, usize) {
+        let p = &self.stages;
+        let found = detections.len();
+        if p.ranking.suppress_duplicates {
+            let d = p.validation.outlier_distance_mm;
+            let overlap = p.ranking.duplicate_overlap;
+            let keypoints = &self.model.final_keypoints;
+            detections = suppress_duplicates(detections, keypoints, d, overlap);
+        }
+        for c in clusters.iter_mut() {
+            c.detections = detections.iter().filter(|d| d.cluster == c.index).count();
+        }
+        rank_detections(&mut detections, p.ranking.rank_score_band_pct);
+        let duplicates = found - detections.len();
+        (detections, duplicates)
     }
 }

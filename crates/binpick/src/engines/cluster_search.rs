@@ -34,10 +34,19 @@ use crate::stages::model::PreparedModel;
 use crate::stages::rank::height_mm;
 
 /// What the engine found in one cluster.
-pub(crate) struct ClusterOutcome {
+struct ClusterOutcome {
     pub report: ClusterReport,
     pub detections: Vec<Detection>,
     /// Time spent in the initial / final alignment, ms (summed over regions).
+    pub initial_ms: f64,
+    pub final_ms: f64,
+}
+
+/// What the engine found in the whole scene: detections in cluster order, one report per
+/// cluster, and the alignment times summed over clusters, ms.
+pub(crate) struct Found {
+    pub detections: Vec<Detection>,
+    pub clusters: Vec<ClusterReport>,
     pub initial_ms: f64,
     pub final_ms: f64,
 }
@@ -53,12 +62,8 @@ pub(crate) struct ClusterSearch<'a> {
 
 impl ClusterSearch<'_> {
     /// Searches every cluster of `world` (point indices per cluster), in parallel.
-    pub(crate) fn run(
-        &self,
-        world: &[Point],
-        clusters: &[Vec<u32>],
-    ) -> Result<Vec<ClusterOutcome>> {
-        clusters
+    pub(crate) fn run(&self, world: &[Point], clusters: &[Vec<u32>]) -> Result<Found> {
+        let outcomes: Vec<ClusterOutcome> = clusters
             .par_iter()
             .enumerate()
             .map(|(i, idx)| {
@@ -66,7 +71,20 @@ impl ClusterSearch<'_> {
                 let points: Vec<Point> = idx.iter().map(|&k| world[k as usize]).collect();
                 self.search_cluster(i, points)
             })
-            .collect()
+            .collect::<Result<_>>()?;
+        let mut found = Found {
+            detections: Vec::new(),
+            clusters: Vec::new(),
+            initial_ms: 0.0,
+            final_ms: 0.0,
+        };
+        for o in outcomes {
+            found.initial_ms += o.initial_ms;
+            found.final_ms += o.final_ms;
+            found.clusters.push(o.report);
+            found.detections.extend(o.detections);
+        }
+        Ok(found)
     }
 
     /// One cluster: searched whole (the thesis) or, with the pile-search extensions, in
