@@ -69,6 +69,10 @@ fn main() {
     configure(&mut build, SOURCES, &include_dirs);
     build.compile("binpick_pcl_bridge");
 
+    // The reference engine is optional (feature `reference`, on for the CLI and the tests).
+    if std::env::var_os("CARGO_FEATURE_REFERENCE").is_none() {
+        return;
+    }
     // No bridge of its own (the functions are declared in src/ffi.rs): this only sets up the
     // include paths of the generated header.
     let mut reference = cxx_build::bridges(std::iter::empty::<&str>());

@@ -68,6 +68,7 @@ pub(crate) mod bridge {
     // C++ against PCL, one call per scene. Lengths in the cloud's units (binpick: mm).
 
     /// Parameters of the reference pipeline (binpick's `Params`, flattened).
+    #[cfg(feature = "reference")]
     #[derive(Clone, Debug)]
     struct ReferenceParams {
         /// 1 = separated FPFH (thesis 4.1), 2 = merged FPFH (4.2).
@@ -104,7 +105,34 @@ pub(crate) mod bridge {
         threads: u32,
     }
 
+    /// How the reference pipeline's ICP ended for one detection.
+    #[cfg(feature = "reference")]
+    #[repr(u8)]
+    #[derive(Debug)]
+    enum IcpFailure {
+        /// ICP ran and returned a proper rotation.
+        None = 0,
+        /// PCL threw (`icp_error`).
+        Pcl = 1,
+        /// PCL's transform is not a proper rotation (`icp_det`).
+        ImproperRotation = 2,
+    }
+
+    /// Why the reference pipeline's search in one cluster stopped (thesis 4.1 steps 1-4).
+    #[cfg(feature = "reference")]
+    #[repr(u8)]
+    #[derive(Debug)]
+    enum ClusterOutcome {
+        NoConsensus = 0,
+        /// Step 2: the best initial alignment's Euclidean score is too high.
+        InitialRejected = 1,
+        /// Step 4: the final alignment's percent of outliers is too high.
+        FinalRejected = 2,
+        Accepted = 3,
+    }
+
     /// One accepted detection of the reference pipeline.
+    #[cfg(feature = "reference")]
     #[derive(Clone, Debug)]
     struct ReferenceDetection {
         /// Row-major 4x4, model -> scene (final pose).
@@ -123,23 +151,22 @@ pub(crate) mod bridge {
         /// PCL's fitness score (may be non-finite or huge when ICP matched nothing).
         icp_fitness: f64,
         icp_adopted: bool,
-        /// 0 = ICP ran, 1 = PCL failed (`icp_error`), 2 = improper rotation (`icp_det`).
-        icp_error_kind: u8,
+        icp_failure: IcpFailure,
         icp_error: String,
         icp_det: f64,
     }
 
     /// What happened in one cluster.
+    #[cfg(feature = "reference")]
     #[derive(Clone, Debug)]
     struct ReferenceCluster {
         points: u32,
-        /// 0 = no RANSAC consensus, 1 = initial score too high, 2 = final score too high,
-        /// 3 = accepted.
-        outcome: u8,
-        /// The rejected score for outcomes 1 and 2.
+        outcome: ClusterOutcome,
+        /// The rejected score for `InitialRejected` and `FinalRejected`.
         score: f64,
     }
 
+    #[cfg(feature = "reference")]
     #[derive(Clone, Debug)]
     struct ReferencePlane {
         coefficients: [f32; 4],
@@ -147,6 +174,7 @@ pub(crate) mod bridge {
     }
 
     /// Wall-clock milliseconds. Per-cluster stages add up the work of all OpenMP threads.
+    #[cfg(feature = "reference")]
     #[derive(Clone, Debug)]
     struct ReferenceTimings {
         /// Up-front model checks (voxel grid, keypoints, FPFH validity, final keypoints).
@@ -173,6 +201,7 @@ pub(crate) mod bridge {
         omp_max_active_levels: i32,
     }
 
+    #[cfg(feature = "reference")]
     #[derive(Clone, Debug)]
     struct ReferenceResult {
         /// In cluster order (not ranked).
@@ -261,6 +290,7 @@ pub(crate) mod bridge {
         ) -> Result<Transform>;
         fn icp_align(target: &Cloud, source_xyz: &[f32], params: &IcpParams) -> Result<IcpResult>;
 
+        #[cfg(feature = "reference")]
         fn reference_recognize(
             model_xyz: &[f32],
             scene_xyz: &[f32],

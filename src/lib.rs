@@ -28,9 +28,10 @@ use cxx::UniquePtr;
 use ffi::bridge;
 
 pub use bridge::Correspondence;
+#[cfg(feature = "reference")]
 pub use bridge::{
-    ReferenceCluster, ReferenceDetection, ReferenceParams, ReferencePlane, ReferenceResult,
-    ReferenceTimings,
+    ClusterOutcome, IcpFailure, ReferenceCluster, ReferenceDetection, ReferenceParams,
+    ReferencePlane, ReferenceResult, ReferenceTimings,
 };
 
 /// One point `[x, y, z]`.
@@ -243,6 +244,9 @@ pub fn reject_sample_consensus_sweep(
         .map(|r| consensus(r, correspondences.len()))
         .collect())
 }
+
+/// PCL's name of the ICP call, in errors.
+const ICP_CALL: &str = "IterativeClosestPoint";
 
 const SAC_CALL: &str = "CorrespondenceRejectorSampleConsensus";
 
@@ -472,7 +476,6 @@ impl IndexedCloud {
     /// ICP of `source` onto this cloud, reusing its kd-tree. Errors if PCL's transform is not
     /// a proper rotation.
     pub fn icp(&self, source: &[Point], params: &IcpParams) -> Result<IcpOutcome> {
-        const CALL: &str = "IterativeClosestPoint";
         let p = bridge::IcpParams {
             initial: params.initial,
             max_correspondence_distance: params.max_correspondence_distance,
@@ -481,8 +484,8 @@ impl IndexedCloud {
             batch_correspondences: params.batch_correspondences,
             relative_mse: params.relative_mse,
         };
-        let r = bridge::icp_align(self.cloud(), flat(source), &p).map_err(pcl_err(CALL))?;
-        check_proper(CALL, &r.transform)?;
+        let r = bridge::icp_align(self.cloud(), flat(source), &p).map_err(pcl_err(ICP_CALL))?;
+        check_proper(ICP_CALL, &r.transform)?;
         Ok(IcpOutcome {
             transform: r.transform,
             converged: r.converged,
@@ -493,6 +496,7 @@ impl IndexedCloud {
     }
 }
 
+#[cfg(feature = "reference")]
 /// The reference pipeline (`cpp/reference/`): thesis Algorithms 1 and 2 written directly in C++
 /// against PCL, the way the thesis describes them (model features recomputed per cluster, a
 /// kd-tree built by every stage and every score, an OpenMP loop over clusters), in one call:
@@ -506,4 +510,50 @@ pub fn reference_recognize(
     init();
     bridge::reference_recognize(flat(model), flat(scene), params)
         .map_err(pcl_err("reference pipeline"))
+}
+
+/// Row-major 4x4 -> rigid pose; `None` unless it is a rigid transform within 1e-4. The one
+/// place where the bridge's matrices become poses.
+pub fn rigid_pose(m: &Mat4) -> Option<nalgebra::Isometry3<f64>> {
+    binpick_cloud::pose_from_row_major(m).ok()
+}
+
+/// Rigid pose -> row-major 4x4 (for [`IcpParams::initial`]).
+pub fn row_major(pose: &nalgebra::Isometry3<f64>) -> Mat4 {
+    binpick_cloud::pose_to_row_major(pose)
+}
+
+impl IcpOutcome {
+    /// The final transform as a pose; `None` if it is not rigid within 1e-4.
+    pub fn pose(&self) -> Option<nalgebra::Isometry3<f64>> {
+        rigid_pose(&self.transform)
+    }
+}
+
+#[cfg(feature = "reference")]
+impl ReferenceDetection {
+    /// The final pose (model -> scene); `None` if the matrix is not rigid.
+    pub fn pose(&self) -> Option<nalgebra::Isometry3<f64>> {
+        rigid_pose(&self.pose)
+    }
+
+    /// The initial alignment's pose; `None` if the matrix is not rigid.
+    pub fn initial_pose(&self) -> Option<nalgebra::Isometry3<f64>> {
+        rigid_pose(&self.initial_pose)
+    }
+
+    /// Why ICP failed, worded as the bridge's own ICP call words it; `None` when it ran.
+    pub fn icp_error(&self) -> Option<Error> {
+        match self.icp_failure {
+            IcpFailure::Pcl => Some(Error::Pcl {
+                call: ICP_CALL,
+                message: self.icp_error.clone(),
+            }),
+            IcpFailure::ImproperRotation => Some(Error::ImproperRotation {
+                call: ICP_CALL,
+                det: self.icp_det,
+            }),
+            _ => None,
+        }
+    }
 }

@@ -492,7 +492,7 @@ struct Initial {
 
 struct ClusterWork {
   std::uint32_t points = 0;
-  std::uint8_t outcome = 0;  // 0 no consensus, 1 initial rejected, 2 final rejected, 3 accepted
+  ClusterOutcome outcome = ClusterOutcome::NoConsensus;
   double score = 0.0;
   bool detected = false;
   Initial initial;
@@ -501,7 +501,7 @@ struct ClusterWork {
   bool icp_converged = false, icp_adopted = false;
   std::uint32_t icp_iterations = 0;
   double icp_fitness = 0.0;
-  std::uint8_t icp_error_kind = 0;
+  IcpFailure icp_failure = IcpFailure::None;
   std::string icp_error;
   double icp_det = 0.0;
   StageTimes t;
@@ -656,7 +656,7 @@ void final_alignment(const PointCloudXYZ::Ptr& model_final, const PointCloudXYZ:
     icp.align(aligned, initial);
     const Pose out = icp.getFinalTransformation();
     if (!proper(out)) {
-      w.icp_error_kind = 2;
+      w.icp_failure = IcpFailure::ImproperRotation;
       w.icp_det = rotation_det(out);
     } else {
       w.icp_converged = icp.hasConverged();
@@ -668,7 +668,7 @@ void final_alignment(const PointCloudXYZ::Ptr& model_final, const PointCloudXYZ:
       }
     }
   } catch (const std::exception& e) {
-    w.icp_error_kind = 1;
+    w.icp_failure = IcpFailure::Pcl;
     w.icp_error = e.what();
   }
   w.t.icp += ms_since(t0);
@@ -704,12 +704,12 @@ void search_cluster(const PointCloudXYZ::Ptr& world, const std::vector<std::uint
   w.initial = initial_alignment(model, cluster, p, w.t);
   w.t.initial += ms_since(t0);
   if (!w.initial.found) {
-    w.outcome = 0;
+    w.outcome = ClusterOutcome::NoConsensus;
     return;
   }
   // Step 2: keep only initial transformations with a good score.
   if (w.initial.score >= p.initial_score_max) {
-    w.outcome = 1;
+    w.outcome = ClusterOutcome::InitialRejected;
     w.score = w.initial.score;
     return;
   }
@@ -718,11 +718,11 @@ void search_cluster(const PointCloudXYZ::Ptr& world, const std::vector<std::uint
   w.t.final_ += ms_since(t0);
   // Step 4: keep only final transformations with a good score.
   if (w.final_score >= p.final_score_max) {
-    w.outcome = 2;
+    w.outcome = ClusterOutcome::FinalRejected;
     w.score = w.final_score;
     return;
   }
-  w.outcome = 3;
+  w.outcome = ClusterOutcome::Accepted;
   w.detected = true;
 }
 
@@ -907,7 +907,7 @@ ReferenceResult reference_recognize(rust::Slice<const float> model_xyz,
     d.icp_iterations = w.icp_iterations;
     d.icp_fitness = w.icp_fitness;
     d.icp_adopted = w.icp_adopted;
-    d.icp_error_kind = w.icp_error_kind;
+    d.icp_failure = w.icp_failure;
     d.icp_error = rust::String(w.icp_error);
     d.icp_det = w.icp_det;
     out.detections.push_back(std::move(d));

@@ -5,9 +5,9 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use binpick::eval::median_p95;
 use binpick::reference::recognize_reference;
 use binpick::{Params, PointCloud, Recognition, Recognizer, Timings};
+use binpick_eval::median_p95;
 use serde::Serialize;
 
 use crate::config::{ParamArgs, load, log, write_json};

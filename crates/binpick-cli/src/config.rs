@@ -52,10 +52,10 @@ impl ParamArgs {
             p.units = u;
         }
         if let Some(t) = self.threads {
-            p.threads = t;
+            p.runtime.threads = t;
         }
         if self.time_budget_ms.is_some() {
-            p.time_budget_ms = self.time_budget_ms;
+            p.runtime.time_budget_ms = self.time_budget_ms;
         }
         if self.thesis_strict {
             p.thesis_strict = true;

@@ -3,9 +3,9 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use binpick::eval::{ThesisTable, median_p95, thesis_reference};
-use binpick::evaluate::{EvalRun, dataset_models, evaluate_dataset};
 use binpick_cloud::dataset::Dataset;
+use binpick_eval::{EvalRun, dataset_models, evaluate_dataset};
+use binpick_eval::{ThesisTable, median_p95, thesis_reference};
 use serde::Serialize;
 
 use crate::config::{ParamArgs, log, write_json, write_params};
@@ -36,13 +36,13 @@ struct Summary<'a> {
     preset: &'a str,
     units: &'static str,
     table: &'a ThesisTable,
-    percents: binpick::eval::ThesisPercents,
-    thesis: Option<binpick::eval::ThesisPercents>,
+    percents: binpick_eval::ThesisPercents,
+    thesis: Option<binpick_eval::ThesisPercents>,
     time_ms_median: f64,
     time_ms_p95: f64,
     failed_scenes: usize,
     params: &'a binpick::Params,
-    scenes: &'a [binpick::evaluate::SceneResult],
+    scenes: &'a [binpick_eval::SceneResult],
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -159,7 +159,7 @@ pub fn print_table(run: &EvalRun, preset: &str) {
     let t = &run.table;
     let p = t.percents();
     let th = thesis_reference(preset);
-    let thv = |f: fn(&binpick::eval::ThesisPercents) -> f64| match th {
+    let thv = |f: fn(&binpick_eval::ThesisPercents) -> f64| match th {
         Some(x) if !f(&x).is_nan() => format!("{:>6.0} %", f(&x)),
         _ => "       -".into(),
     };

@@ -4,23 +4,21 @@
 use std::path::Path;
 
 use anyhow::{Context, Result};
-use binpick::eval::{ThesisTable, thesis_reference};
-use binpick::evaluate::EvalRun;
-use binpick::{DetectionRecord, PointCloud};
+use binpick::{Detection, PointCloud};
+use binpick_eval::{EvalRun, ThesisTable, thesis_reference};
 use binpick_viz::{Percents, Placed, PlotOptions, RenderOptions, TableRow};
 use serde::{Deserialize, Serialize};
 
 use crate::config::log;
 
 /// Detections as the renderer wants them.
-pub fn placed(detections: &[DetectionRecord]) -> Result<Vec<Placed>> {
+pub fn placed(detections: &[Detection]) -> Result<Vec<Placed>> {
     detections
         .iter()
         .map(|d| {
             Ok(Placed {
                 rank: d.rank,
-                pose: binpick::pose::from_mat4(&d.pose)
-                    .context("a detection's pose is not a rigid transform")?,
+                pose: d.pose,
                 final_score: d.final_score,
                 initial_score: d.initial_score,
             })
@@ -32,7 +30,7 @@ pub fn placed(detections: &[DetectionRecord]) -> Result<Vec<Placed>> {
 pub fn render(
     scene: &PointCloud,
     model: &PointCloud,
-    detections: &[DetectionRecord],
+    detections: &[Detection],
     up: [f64; 3],
     title: String,
     out: &Path,
@@ -58,7 +56,7 @@ pub fn render(
 pub fn labelled_ply(
     scene: &PointCloud,
     model: &PointCloud,
-    detections: &[DetectionRecord],
+    detections: &[Detection],
     explain_mm: f64,
     out: &Path,
 ) -> Result<()> {
@@ -82,7 +80,7 @@ struct StoredTable {
     table: ThesisTable,
 }
 
-fn to_percents(p: binpick::eval::ThesisPercents) -> Percents {
+fn to_percents(p: binpick_eval::ThesisPercents) -> Percents {
     Percents {
         recognition: p.recognition,
         false_negatives: p.false_negatives,

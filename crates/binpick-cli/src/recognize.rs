@@ -123,7 +123,7 @@ pub fn write_pictures(
             scene,
             model,
             &report.detections,
-            report.params.up,
+            report.params.ranking.up,
             title,
             png,
         )?;
@@ -133,7 +133,7 @@ pub fn write_pictures(
             scene,
             model,
             &report.detections,
-            report.params.outlier_distance_mm,
+            report.params.validation.outlier_distance_mm,
             ply,
         )?;
     }

@@ -4,8 +4,8 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use binpick::Recognizer;
-use binpick::eval::median_p95;
-use binpick::evaluate::replay_scan;
+use binpick_eval::median_p95;
+use binpick_eval::replay_scan;
 use serde::Serialize;
 
 use crate::config::{ParamArgs, load, log, write_json, write_params_next_to};
@@ -36,7 +36,7 @@ struct Summary<'a> {
     scans_without_detection: usize,
     time_ms_median: f64,
     time_ms_p95: f64,
-    results: &'a [binpick::evaluate::ReplayResult],
+    results: &'a [binpick_eval::ReplayResult],
     params: &'a binpick::Params,
 }
 

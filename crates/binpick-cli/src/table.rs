@@ -1,6 +1,6 @@
 //! The human-readable ranked table printed by `recognize` and `replay`.
 
-use binpick::{Recognition, pose};
+use binpick::Recognition;
 
 /// Roll, pitch, yaw (XYZ fixed axes), degrees.
 fn rpy_deg(p: &nalgebra::Isometry3<f64>) -> [f64; 3] {
@@ -47,7 +47,6 @@ pub fn print_ranked(r: &Recognition) {
             d.rank_reason
         );
     }
-    let _ = pose::quaternion_wxyz; // poses in quaternion form are in the JSON
 }
 
 pub fn summary(r: &Recognition) -> String {

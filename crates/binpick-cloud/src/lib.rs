@@ -117,18 +117,34 @@ impl PointCloud {
 
     /// Mean of the points, or `None` for an empty cloud.
     pub fn centroid(&self) -> Option<[f64; 3]> {
-        if self.points.is_empty() {
-            return None;
-        }
-        let mut s = [0.0f64; 3];
-        for p in &self.points {
-            for (acc, &c) in s.iter_mut().zip(p) {
-                *acc += f64::from(c);
-            }
-        }
-        let n = self.points.len() as f64;
-        Some([s[0] / n, s[1] / n, s[2] / n])
+        centroid(&self.points)
     }
+}
+
+/// Mean of `points`, or `None` when there are none.
+pub fn centroid(points: &[Point]) -> Option<[f64; 3]> {
+    if points.is_empty() {
+        return None;
+    }
+    let mut s = [0.0f64; 3];
+    for p in points {
+        for (acc, &c) in s.iter_mut().zip(p) {
+            *acc += f64::from(c);
+        }
+    }
+    let n = points.len() as f64;
+    Some([s[0] / n, s[1] / n, s[2] / n])
+}
+
+/// At most `max_points` of `points`, evenly strided (deterministic), as f64 points: a sample
+/// for pose comparisons.
+pub fn strided_points(points: &[Point], max_points: usize) -> Vec<Point3<f64>> {
+    let step = points.len().div_ceil(max_points.max(1)).max(1);
+    points
+        .iter()
+        .step_by(step)
+        .map(|p| Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2])))
+        .collect()
 }
 
 /// Applies a rigid transform to one point.

@@ -21,10 +21,8 @@ fn main() -> ExitCode {
     };
 
     // Once per model: validation, keypoints and FPFH of the model for every radius.
-    let params = Params {
-        time_budget_ms: Some(5_000),
-        ..Params::default()
-    };
+    let mut params = Params::default();
+    params.runtime.time_budget_ms = Some(5_000);
     let recognizer = match load_cloud(model_path, Units::Millimetres)
         .and_then(|(model, _)| Recognizer::new(&model, params))
     {

@@ -44,3 +44,8 @@ impl Deadline {
         Ok(())
     }
 }
+
+/// A duration in milliseconds (the unit of every timing report).
+pub(crate) fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1000.0
+}

@@ -39,7 +39,8 @@ pub(crate) fn pcl(stage: &'static str) -> impl Fn(binpick_pcl::Error) -> Error {
     move |source| Error::Pcl { stage, source }
 }
 
-pub(crate) fn input(what: &'static str, message: impl Into<String>) -> Error {
+/// An [`Error::Input`] about `what`.
+pub fn input(what: &'static str, message: impl Into<String>) -> Error {
     Error::Input {
         what,
         message: message.into(),

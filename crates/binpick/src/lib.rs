@@ -18,28 +18,38 @@
 //! }
 //! # Ok(()) }
 //! ```
+//!
+//! Layers, top to bottom (each imports only those below it):
+//! [`Recognizer`] (the pipeline) and the reference engine -> the engines (per-cluster
+//! Algorithms 1/2) -> the stages (preprocess, cluster, features, initial and final alignment,
+//! rank, and the model prepared once) -> the validation scores ([`validate`]) -> plain data:
+//! [`params`] (one config per stage) and [`result`] (detections and reports).
 
-pub mod align;
 mod deadline;
+mod engines;
 pub mod error;
-pub mod eval;
-pub mod evaluate;
-pub mod features;
-pub mod model;
 pub mod params;
 pub mod pose;
-pub mod rank;
 pub mod recognizer;
+#[cfg(feature = "reference")]
 pub mod reference;
-pub mod report;
-pub mod scene;
+pub mod result;
+mod stages;
 pub mod validate;
 
 pub use binpick_cloud::{Point, PointCloud, Units};
 pub use error::{Error, Result};
-pub use params::{Algorithm, FeatureSurface, ParamError, Params, Preset};
-pub use recognizer::{ClusterReport, Detection, Recognition, Recognizer, Timings};
-pub use report::{DetectionRecord, RecognitionReport};
+pub use params::{
+    Algorithm, ClusteringConfig, ConsensusConfig, FeatureConfig, FeatureSurface, IcpConfig,
+    ParamError, Params, PileSearchConfig, PreprocessConfig, Preset, RankingConfig,
+    RegionOfInterest, RuntimeConfig, SupportRemoval, ValidationConfig,
+};
+pub use recognizer::Recognizer;
+pub use result::{
+    ClusterReport, Detection, IcpReport, PreprocessReport, Recognition, RecognitionReport,
+    RemovedPlane, Timings,
+};
+pub use stages::model::PreparedModel;
 
 use std::path::Path;
 

@@ -1,18 +1,7 @@
-//! Pose conversions (row-major 4x4 <-> nalgebra) and pose differences.
+//! Pose differences, for comparing detections (poses are nalgebra isometries, model ->
+//! scene, mm; the bridge converts PCL's matrices in one place, `binpick_pcl::rigid_pose`).
 
 use nalgebra::Isometry3;
-
-use binpick_cloud::{RowMajor4x4, pose_from_row_major, pose_to_row_major};
-
-/// Row-major 4x4 -> pose; `None` if it is not a rigid transform (within 1e-4).
-pub fn from_mat4(m: &RowMajor4x4) -> Option<Isometry3<f64>> {
-    pose_from_row_major(m).ok()
-}
-
-/// Pose -> row-major 4x4.
-pub fn to_mat4(pose: &Isometry3<f64>) -> RowMajor4x4 {
-    pose_to_row_major(pose)
-}
 
 /// Rotation angle between two poses, degrees.
 pub fn rotation_error_deg(a: &Isometry3<f64>, b: &Isometry3<f64>) -> f64 {
@@ -22,10 +11,4 @@ pub fn rotation_error_deg(a: &Isometry3<f64>, b: &Isometry3<f64>) -> f64 {
 /// Distance between two poses' translations, mm.
 pub fn translation_error_mm(a: &Isometry3<f64>, b: &Isometry3<f64>) -> f64 {
     (a.translation.vector - b.translation.vector).norm()
-}
-
-/// Unit quaternion as `[w, x, y, z]`.
-pub fn quaternion_wxyz(pose: &Isometry3<f64>) -> [f64; 4] {
-    let q = pose.rotation.quaternion();
-    [q.w, q.i, q.j, q.k]
 }

@@ -21,19 +21,20 @@
 
 use std::time::Instant;
 
-use nalgebra::{Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
 use binpick_cloud::{Point, PointCloud};
-use binpick_pcl::{ReferenceParams, ReferenceResult};
+use binpick_pcl::{ClusterOutcome, ReferenceParams, ReferenceResult};
 
-use crate::align::IcpReport;
+use crate::deadline::ms;
 use crate::error::{Error, Result, input, pcl};
 use crate::params::{Algorithm, FeatureSurface, Params};
-use crate::pose::from_mat4;
-use crate::rank::rank_detections;
-use crate::recognizer::{ClusterReport, Detection, Recognition, Timings, check_extent, ms};
-use crate::scene::{PreprocessReport, RemovedPlane};
+use crate::result::{
+    ClusterReport, Detection, IcpReport, PreprocessReport, Recognition, RemovedPlane, SearchStop,
+    Timings,
+};
+use crate::stages::preprocess::check_units;
+use crate::stages::rank::{height_mm, rank_detections};
 
 /// Where the reference spent its time, ms. Stages inside the cluster loop add up the work of
 /// all OpenMP threads (the thesis's pie charts, 5.7).
@@ -88,18 +89,21 @@ pub fn recognize_reference_detailed(
 ) -> Result<ReferenceRun> {
     let start = Instant::now();
     params.validate()?;
-    check_extent("model", model, params)?;
-    check_extent("scene", scene, params)?;
+    check_units("model", model, &params.preprocess)?;
+    check_units("scene", scene, &params.preprocess)?;
     let raw =
         binpick_pcl::reference_recognize(&model.points, &scene.points, &reference_params(params))
             .map_err(pcl("reference pipeline"))?;
     let mut run = convert(raw, params)?;
     let t = Instant::now();
-    rank_detections(&mut run.recognition.detections, params.rank_score_band_pct);
+    rank_detections(
+        &mut run.recognition.detections,
+        params.ranking.rank_score_band_pct,
+    );
     run.recognition.timings.ranking_ms = ms(t.elapsed());
     let elapsed = start.elapsed();
     run.recognition.timings.total_ms = ms(elapsed);
-    if let Some(budget) = params.time_budget_ms {
+    if let Some(budget) = params.runtime.time_budget_ms {
         if elapsed.as_millis() > u128::from(budget) {
             return Err(Error::TimeBudget {
                 budget_ms: budget,
@@ -113,96 +117,68 @@ pub fn recognize_reference_detailed(
 
 /// `params` as the bridge's flat struct.
 pub fn reference_params(p: &Params) -> ReferenceParams {
-    let roi = p.region_of_interest;
+    let pre = &p.preprocess;
+    let roi = pre.region_of_interest;
+    let (cl, f, c, icp) = (&p.clustering, &p.features, &p.consensus, &p.icp);
     ReferenceParams {
         algorithm: p.algorithm.number(),
-        resolution: p.resolution_mm,
+        resolution: pre.resolution_mm,
         roi_enabled: roi.is_some(),
         roi_min: roi.map_or([0.0; 3], |r| r.min_mm),
         roi_max: roi.map_or([0.0; 3], |r| r.max_mm),
-        support_enabled: p.support.enabled,
-        support_distance: p.support.distance_mm,
-        support_max_planes: p.support.max_planes,
-        support_min_points_factor: p.support.min_points_factor,
-        support_ransac_iterations: p.support.ransac_iterations,
-        cluster_tolerance_factor: p.cluster_tolerance_factor,
-        cluster_min_factor: p.cluster_min_factor,
-        cluster_max_factor: p.cluster_max_factor,
-        initial_leaf: p.initial_leaf_mm,
-        fpfh_radii: p.fpfh_radii_mm.clone(),
-        normal_radius_factor: p.normal_radius_factor,
-        feature_surface_cloud: p.feature_surface == FeatureSurface::Cloud,
-        sac_thresholds: p.sac_thresholds_mm.clone(),
-        sac_iterations: p.sac_iterations,
-        initial_score_max: p.initial_score_max,
-        final_leaf: p.final_leaf_mm,
-        icp_iterations: p.icp_iterations,
-        icp_transformation_epsilon: p.icp_transformation_epsilon,
-        icp_max_correspondence: p.icp_max_correspondence_mm,
-        outlier_distance: p.outlier_distance_mm,
-        final_score_max: p.final_score_max_pct,
-        scene_viewpoint: p.scene_viewpoint_mm,
-        model_viewpoint: p.model_viewpoint_mm,
-        threads: u32::try_from(p.threads).unwrap_or(u32::MAX),
+        support_enabled: pre.support.enabled,
+        support_distance: pre.support.distance_mm,
+        support_max_planes: pre.support.max_planes,
+        support_min_points_factor: pre.support.min_points_factor,
+        support_ransac_iterations: pre.support.ransac_iterations,
+        cluster_tolerance_factor: cl.cluster_tolerance_factor,
+        cluster_min_factor: cl.cluster_min_factor,
+        cluster_max_factor: cl.cluster_max_factor,
+        initial_leaf: f.initial_leaf_mm,
+        fpfh_radii: f.fpfh_radii_mm.clone(),
+        normal_radius_factor: f.normal_radius_factor,
+        feature_surface_cloud: f.feature_surface == FeatureSurface::Cloud,
+        sac_thresholds: c.sac_thresholds_mm.clone(),
+        sac_iterations: c.sac_iterations,
+        initial_score_max: c.initial_score_max,
+        final_leaf: icp.final_leaf_mm,
+        icp_iterations: icp.icp_iterations,
+        icp_transformation_epsilon: icp.icp_transformation_epsilon,
+        icp_max_correspondence: icp.icp_max_correspondence_mm,
+        outlier_distance: p.validation.outlier_distance_mm,
+        final_score_max: p.validation.final_score_max_pct,
+        scene_viewpoint: f.scene_viewpoint_mm,
+        model_viewpoint: f.model_viewpoint_mm,
+        threads: u32::try_from(p.runtime.threads).unwrap_or(u32::MAX),
     }
-}
-
-fn centroid(points: &[Point]) -> Point3<f64> {
-    let mut s = Vector3::zeros();
-    for p in points {
-        s += Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
-    }
-    Point3::from(s / points.len().max(1) as f64)
 }
 
 /// The bridge's result as a [`Recognition`] (detections not yet ranked), with the cluster
-/// outcomes worded as `Recognizer` words them.
+/// outcomes worded as the Rust engine words them.
 fn convert(r: ReferenceResult, p: &Params) -> Result<ReferenceRun> {
-    const ICP: &str = "IterativeClosestPoint";
     let final_kp: Vec<Point> = r
         .model_final_keypoints
         .chunks_exact(3)
         .map(|c| [c[0], c[1], c[2]])
         .collect();
-    let up = Vector3::from(p.up).normalize();
-    let c = centroid(&final_kp);
     let not_rigid = || input("reference pipeline", "returned a pose that is not rigid");
-
     let mut detections = Vec::with_capacity(r.detections.len());
     for d in &r.detections {
-        let pose = from_mat4(&d.pose).ok_or_else(not_rigid)?;
-        let initial_pose = from_mat4(&d.initial_pose).ok_or_else(not_rigid)?;
-        let error = match d.icp_error_kind {
-            0 => None,
-            1 => Some(
-                binpick_pcl::Error::Pcl {
-                    call: ICP,
-                    message: d.icp_error.clone(),
-                }
-                .to_string(),
-            ),
-            _ => Some(
-                binpick_pcl::Error::ImproperRotation {
-                    call: ICP,
-                    det: d.icp_det,
-                }
-                .to_string(),
-            ),
-        };
-        let fitness_ok = error.is_none() && d.icp_fitness.is_finite() && d.icp_fitness < 1e300;
+        let pose = d.pose().ok_or_else(not_rigid)?;
         let fpfh_radius_mm = usize::try_from(d.fpfh_radius_index)
             .ok()
-            .and_then(|i| p.fpfh_radii_mm.get(i).copied());
+            .and_then(|i| p.features.fpfh_radii_mm.get(i).copied());
         if p.algorithm == Algorithm::SeparatedFpfh && fpfh_radius_mm.is_none() {
             return Err(input(
                 "reference pipeline",
                 format!("returned FPFH radius index {}", d.fpfh_radius_index),
             ));
         }
+        let error = d.icp_error().map(|e| e.to_string());
         detections.push(Detection {
             rank: 0,
             pose,
-            initial_pose,
+            initial_pose: d.initial_pose().ok_or_else(not_rigid)?,
             initial_score: d.initial_score,
             final_score: d.final_score,
             score_before_icp: d.score_before_icp,
@@ -214,39 +190,48 @@ fn convert(r: ReferenceResult, p: &Params) -> Result<ReferenceRun> {
             icp: IcpReport {
                 converged: d.icp_converged,
                 iterations: d.icp_iterations,
-                fitness_mm2: fitness_ok.then_some(d.icp_fitness),
+                fitness_mm2: error
+                    .is_none()
+                    .then(|| IcpReport::usable_fitness(d.icp_fitness))
+                    .flatten(),
                 adopted: d.icp_adopted,
                 error,
             },
-            height_mm: (pose * c).coords.dot(&up),
+            height_mm: height_mm(&pose, &final_kp, p.ranking.up),
             rank_reason: String::new(),
         });
     }
-
     let clusters = r
         .clusters
         .iter()
         .enumerate()
         .map(|(index, c)| {
-            let outcome = match c.outcome {
-                0 => "no RANSAC consensus".to_owned(),
-                1 => format!("initial score {:.1} >= {}", c.score, p.initial_score_max),
-                2 => format!(
-                    "final score {:.1} % >= {} %",
-                    c.score, p.final_score_max_pct
-                ),
-                _ => "1 detection(s); then accepted".to_owned(),
+            let accepted = c.outcome == ClusterOutcome::Accepted;
+            let (initial_max, final_max) = (
+                p.consensus.initial_score_max,
+                p.validation.final_score_max_pct,
+            );
+            let stop = match c.outcome {
+                ClusterOutcome::InitialRejected => SearchStop::InitialRejected {
+                    score: c.score,
+                    max: initial_max,
+                },
+                ClusterOutcome::FinalRejected => SearchStop::FinalRejected {
+                    score: c.score,
+                    max: final_max,
+                },
+                ClusterOutcome::Accepted => SearchStop::Accepted,
+                _ => SearchStop::NoConsensus,
             };
             ClusterReport {
                 index,
                 points: c.points as usize,
-                detections: usize::from(c.outcome == 3),
+                detections: usize::from(accepted),
                 regions: 1,
-                outcome,
+                outcome: stop.outcome(usize::from(accepted)),
             }
         })
         .collect();
-
     let t = &r.timings;
     let recognition = Recognition {
         detections,

@@ -46,12 +46,10 @@ fn load(rel: &str) -> PointCloud {
     load_cloud(&data(rel), Units::Millimetres).unwrap().0
 }
 
-fn strict(p: Params, algorithm: Algorithm) -> Params {
-    Params {
-        thesis_strict: true,
-        algorithm,
-        ..p
-    }
+fn strict(mut p: Params, algorithm: Algorithm) -> Params {
+    p.thesis_strict = true;
+    p.algorithm = algorithm;
+    p
 }
 
 /// Largest differences between the engines over one comparison.
@@ -276,10 +274,11 @@ fn synthetic_scene_both_algorithms() {
     let model = support::model();
     // Thesis 4.3 defaults with the conveyor tests' sweep (5.5: odd thresholds) and three of
     // the five radii, to keep the test short.
-    let sweep = Params {
-        fpfh_radii_mm: vec![10.0, 15.0, 20.0],
-        sac_thresholds_mm: (0..10).map(|i| f64::from(2 * i + 1)).collect(),
-        ..Params::default()
+    let sweep = {
+        let mut p = Params::default();
+        p.features.fpfh_radii_mm = vec![10.0, 15.0, 20.0];
+        p.consensus.sac_thresholds_mm = (0..10).map(|i| f64::from(2 * i + 1)).collect();
+        p
     };
     for algorithm in [Algorithm::SeparatedFpfh, Algorithm::MergedFpfh] {
         let params = strict(sweep.clone(), algorithm);
@@ -309,43 +308,38 @@ fn other_options_match_too() {
         seed: 5,
     });
     let model = support::model();
-    let cheap = Params {
-        fpfh_radii_mm: vec![10.0, 20.0],
-        sac_thresholds_mm: vec![1.0, 4.0, 9.0],
-        ..Params::default()
+    let cheap = {
+        let mut p = Params::default();
+        p.features.fpfh_radii_mm = vec![10.0, 20.0];
+        p.consensus.sac_thresholds_mm = vec![1.0, 4.0, 9.0];
+        p
     };
     let variants = [
-        (
-            "full-cloud FPFH",
-            Params {
-                feature_surface: FeatureSurface::Cloud,
-                fpfh_radii_mm: vec![5.0, 8.0],
-                ..cheap.clone()
-            },
-        ),
-        (
-            "region of interest",
-            Params {
-                region_of_interest: Some(RegionOfInterest {
-                    min_mm: [-60.0, -40.0, -5.0],
-                    max_mm: [120.0, 120.0, 80.0],
-                }),
-                ..cheap.clone()
-            },
-        ),
-        (
-            "no support removal, 2 mm voxels",
-            Params {
-                resolution_mm: 2.0,
-                initial_leaf_mm: 4.0,
-                final_leaf_mm: 3.0,
-                support: binpick::params::SupportRemoval {
-                    enabled: false,
-                    ..Default::default()
-                },
-                ..cheap.clone()
-            },
-        ),
+        ("full-cloud FPFH", {
+            let mut p = cheap.clone();
+            p.features.feature_surface = FeatureSurface::Cloud;
+            p.features.fpfh_radii_mm = vec![5.0, 8.0];
+            p
+        }),
+        ("region of interest", {
+            let mut p = cheap.clone();
+            p.preprocess.region_of_interest = Some(RegionOfInterest {
+                min_mm: [-60.0, -40.0, -5.0],
+                max_mm: [120.0, 120.0, 80.0],
+            });
+            p
+        }),
+        ("no support removal, 2 mm voxels", {
+            let mut p = cheap.clone();
+            p.preprocess.resolution_mm = 2.0;
+            p.features.initial_leaf_mm = 4.0;
+            p.icp.final_leaf_mm = 3.0;
+            p.preprocess.support = binpick::params::SupportRemoval {
+                enabled: false,
+                ..Default::default()
+            };
+            p
+        }),
     ];
     for (name, p) in variants {
         for algorithm in [Algorithm::SeparatedFpfh, Algorithm::MergedFpfh] {
@@ -365,9 +359,10 @@ fn reference_is_deterministic_across_threads_and_reports_timings() {
     let model = load("tiny/models/A.pcd");
     let scene = load("tiny/scenes/tiny-conv-A-000.pcd");
     let run = |threads| {
-        let p = Params {
-            threads,
-            ..strict(Preset::A.params(), Algorithm::SeparatedFpfh)
+        let p = {
+            let mut p = strict(Preset::A.params(), Algorithm::SeparatedFpfh);
+            p.runtime.threads = threads;
+            p
         };
         recognize_reference_detailed(&model, &scene, &p).unwrap()
     };
@@ -438,30 +433,34 @@ fn reference_rejects_bad_input() {
     // Absurd parameters name the field, as with the Rust engine.
     for (bad, field) in [
         (
-            Params {
-                final_leaf_mm: -2.0,
-                ..p.clone()
+            {
+                let mut p = p.clone();
+                p.icp.final_leaf_mm = -2.0;
+                p
             },
             "final_leaf_mm",
         ),
         (
-            Params {
-                fpfh_radii_mm: vec![],
-                ..p.clone()
+            {
+                let mut p = p.clone();
+                p.features.fpfh_radii_mm = vec![];
+                p
             },
             "fpfh_radii_mm",
         ),
         (
-            Params {
-                resolution_mm: f64::NAN,
-                ..p.clone()
+            {
+                let mut p = p.clone();
+                p.preprocess.resolution_mm = f64::NAN;
+                p
             },
             "resolution_mm",
         ),
         (
-            Params {
-                sac_thresholds_mm: vec![3.0, f64::INFINITY],
-                ..p.clone()
+            {
+                let mut p = p.clone();
+                p.consensus.sac_thresholds_mm = vec![3.0, f64::INFINITY];
+                p
             },
             "sac_thresholds_mm",
         ),
@@ -479,17 +478,14 @@ fn reference_rejects_bad_input() {
     );
 
     // A region of interest with nothing inside.
-    let e = msg(recognize_reference(
-        &model,
-        &scene,
-        &Params {
-            region_of_interest: Some(RegionOfInterest {
-                min_mm: [5000.0; 3],
-                max_mm: [6000.0; 3],
-            }),
-            ..p.clone()
-        },
-    )
+    let e = msg(recognize_reference(&model, &scene, &{
+        let mut p = p.clone();
+        p.preprocess.region_of_interest = Some(RegionOfInterest {
+            min_mm: [5000.0; 3],
+            max_mm: [6000.0; 3],
+        });
+        p
+    })
     .unwrap_err());
     assert!(e.contains("region of interest"), "{e}");
 

@@ -188,13 +188,11 @@ fn scene_without_the_part_yields_nothing() {
 fn one_and_many_threads_give_identical_output() {
     let (cloud, _) = standard_scene();
     let run = |threads| {
-        let rec = Recognizer::new(
-            &model(),
-            Params {
-                threads,
-                ..Params::default()
-            },
-        )
+        let rec = Recognizer::new(&model(), {
+            let mut p = Params::default();
+            p.runtime.threads = threads;
+            p
+        })
         .unwrap();
         let r = rec.recognize(&cloud).unwrap();
         (r.detections, r.clusters, r.preprocess)
@@ -223,13 +221,11 @@ fn bad_inputs_are_clear_errors() {
     let e = msg(Recognizer::new(&metres, Params::default()).unwrap_err());
     assert!(e.contains("metres") && e.contains("--units m"), "{e}");
     // Absurd parameters name the field.
-    let e = msg(Recognizer::new(
-        &good,
-        Params {
-            final_leaf_mm: -2.0,
-            ..Params::default()
-        },
-    )
+    let e = msg(Recognizer::new(&good, {
+        let mut p = Params::default();
+        p.icp.final_leaf_mm = -2.0;
+        p
+    })
     .unwrap_err());
     assert!(e.contains("final_leaf_mm"), "{e}");
     // Bad scenes.
@@ -263,13 +259,11 @@ fn time_budget_is_enforced() {
 #[test]
 fn recognizer_serves_several_threads() {
     let (cloud, truths) = standard_scene();
-    let rec = Recognizer::new(
-        &model(),
-        Params {
-            threads: 2,
-            ..Params::default()
-        },
-    )
+    let rec = Recognizer::new(&model(), {
+        let mut p = Params::default();
+        p.runtime.threads = 2;
+        p
+    })
     .unwrap();
     let reference = rec.recognize(&cloud).unwrap().detections;
     std::thread::scope(|s| {

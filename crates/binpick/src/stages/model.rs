@@ -2,14 +2,14 @@
 //! recomputed it per cluster; 5.7 notes it "can be precomputed offline").
 
 use binpick_cloud::{Point, PointCloud};
-use binpick_pcl::{IcpParams, IndexedCloud};
+use binpick_pcl::IndexedCloud;
 use nalgebra::{Isometry3, Matrix3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
 use crate::error::{Result, input, pcl};
-use crate::features::{RadiusFeatures, feature_surface, fpfh_for_radius, keypoints};
-use crate::params::Params;
-use crate::pose::{from_mat4, to_mat4};
+use crate::params::{IcpConfig, Params};
+use crate::stages::features::{RadiusFeatures, feature_surface, fpfh_for_radius, keypoints};
+use crate::stages::final_alignment::icp_settings;
 
 /// A model ready for matching. All coordinates in the model frame, mm.
 #[derive(Clone, Debug)]
@@ -27,32 +27,39 @@ pub struct PreparedModel {
     /// Largest distance from the model's centroid to its points, mm (thesis 3.4.1.2).
     pub radius_mm: f64,
     /// Near-symmetries of the model (model frame -> model frame): half-turns about its
-    /// principal axes, each refined by ICP of the model onto itself. Empty when
-    /// `Params::symmetry_candidates` is off.
+    /// principal axes, each refined by ICP of the model onto itself. Empty when the
+    /// near-symmetry candidates extension is off.
     pub near_symmetries: Vec<Isometry3<f64>>,
 }
 
-/// Smallest model the pipeline can work with, in voxelised points.
-const MIN_MODEL_POINTS: usize = 20;
+/// Model points sampled to tell a near-symmetry from the identity.
+const SYMMETRY_SAMPLE_POINTS: usize = 500;
+/// A refined half-turn is a near-symmetry when it moves the sample by more than this, in
+/// model diameters, from the identity and from the ones already found.
+const SYMMETRY_MIN_MOVE_DIAMETERS: f64 = 0.1;
 
 impl PreparedModel {
     /// Voxelises the model, extracts keypoints and computes FPFH for every radius (radii in
-    /// parallel, each with `threads` OpenMP threads).
-    pub fn new(model: &PointCloud, params: &Params, threads: u32) -> Result<Self> {
-        let cloud = binpick_pcl::voxel_grid(&model.points, params.resolution_mm as f32)
+    /// parallel, each with `threads` OpenMP threads). `stages` are the resolved stage configs
+    /// ([`Params::stages`]).
+    pub(crate) fn new(model: &PointCloud, stages: &Params, threads: u32) -> Result<Self> {
+        let resolution_mm = stages.preprocess.resolution_mm;
+        let cfg = &stages.features;
+        let cloud = binpick_pcl::voxel_grid(&model.points, resolution_mm as f32)
             .map_err(pcl("model voxel grid"))?;
-        if cloud.len() < MIN_MODEL_POINTS {
+        if cloud.len() < cfg.min_model_points {
             return Err(input(
                 "model",
                 format!(
-                    "only {} points remain after the {} mm voxel grid (need {MIN_MODEL_POINTS}); \
+                    "only {} points remain after the {} mm voxel grid (need {}); \
                      is the resolution too coarse or the cloud in the wrong units?",
                     cloud.len(),
-                    params.resolution_mm
+                    resolution_mm,
+                    cfg.min_model_points
                 ),
             ));
         }
-        let kp_idx = keypoints(&cloud, params.initial_leaf_mm)?;
+        let kp_idx = keypoints(&cloud, cfg.initial_leaf_mm)?;
         let initial_keypoints: Vec<Point> = kp_idx.iter().map(|&i| cloud[i as usize]).collect();
         if initial_keypoints.len() < 3 {
             return Err(input(
@@ -60,12 +67,12 @@ impl PreparedModel {
                 format!(
                     "{} keypoints at the {} mm initial leaf; at least 3 are needed",
                     initial_keypoints.len(),
-                    params.initial_leaf_mm
+                    cfg.initial_leaf_mm
                 ),
             ));
         }
-        let (surface, surface_kp) = feature_surface(&cloud, &kp_idx, &initial_keypoints, params)?;
-        let features = params
+        let (surface, surface_kp) = feature_surface(&cloud, &kp_idx, &initial_keypoints, cfg)?;
+        let features = cfg
             .fpfh_radii_mm
             .par_iter()
             .map(|&r| {
@@ -73,8 +80,8 @@ impl PreparedModel {
                     &surface,
                     &surface_kp,
                     r,
-                    params,
-                    params.model_viewpoint_mm,
+                    cfg,
+                    cfg.model_viewpoint_mm,
                     threads,
                 )
             })
@@ -89,12 +96,12 @@ impl PreparedModel {
                 ),
             ));
         }
-        let final_idx = keypoints(&cloud, params.final_leaf_mm)?;
+        let final_idx = keypoints(&cloud, stages.icp.final_leaf_mm)?;
         let final_keypoints: Vec<Point> = final_idx.iter().map(|&i| cloud[i as usize]).collect();
         let diameter_mm = diameter(&initial_keypoints);
         let radius_mm = radius(&cloud);
-        let near_symmetries = if params.symmetry_candidates && !params.thesis_strict {
-            near_symmetries(&cloud, &initial_keypoints, diameter_mm, params)?
+        let near_symmetries = if stages.consensus.symmetry_candidates {
+            near_symmetries(&cloud, &initial_keypoints, diameter_mm, &stages.icp)?
         } else {
             Vec::new()
         };
@@ -118,7 +125,7 @@ fn near_symmetries(
     cloud: &[Point],
     keypoints: &[Point],
     diameter_mm: f64,
-    params: &Params,
+    icp: &IcpConfig,
 ) -> Result<Vec<Isometry3<f64>>> {
     let pts: Vec<Vector3<f64>> = cloud
         .iter()
@@ -131,7 +138,7 @@ fn near_symmetries(
     }) / n;
     let axes = cov.symmetric_eigen().eigenvectors;
     let target = IndexedCloud::new(cloud).map_err(pcl("model self-registration"))?;
-    let sample = crate::eval::scoring_points(keypoints, 500);
+    let sample = binpick_cloud::strided_points(keypoints, SYMMETRY_SAMPLE_POINTS);
     // The three half-turns refined in parallel (self-registration starts far from the
     // surface, so its nearest-neighbour searches are the slow kind); kept in axis order.
     let refined: Vec<Isometry3<f64>> = (0..3)
@@ -142,19 +149,9 @@ fn near_symmetries(
                 * UnitQuaternion::from_axis_angle(&axis, std::f64::consts::PI)
                 * Translation3::from(-c);
             target
-                .icp(
-                    keypoints,
-                    &IcpParams {
-                        initial: to_mat4(&turn),
-                        max_correspondence_distance: params.icp_max_correspondence_mm,
-                        max_iterations: params.icp_iterations,
-                        transformation_epsilon: params.icp_transformation_epsilon,
-                        batch_correspondences: true,
-                        relative_mse: params.effective_icp_relative_mse(),
-                    },
-                )
+                .icp(keypoints, &icp_settings(icp, &turn))
                 .ok()
-                .and_then(|o| from_mat4(&o.transform))
+                .and_then(|o| o.pose())
                 .unwrap_or(turn)
         })
         .collect();
@@ -167,7 +164,7 @@ fn near_symmetries(
                 .map(|p: &Point3<f64>| (a * p - r * p).norm())
                 .sum::<f64>()
                 / sample.len().max(1) as f64;
-            d > 0.1 * diameter_mm
+            d > SYMMETRY_MIN_MOVE_DIAMETERS * diameter_mm
         };
         if distinct(&Isometry3::identity()) && found.iter().all(distinct) {
             found.push(r);
@@ -177,7 +174,7 @@ fn near_symmetries(
 }
 
 /// Largest distance from the centroid to a point.
-pub fn radius(points: &[Point]) -> f64 {
+pub(crate) fn radius(points: &[Point]) -> f64 {
     let n = points.len().max(1) as f64;
     let mut c = [0.0f64; 3];
     for p in points {
@@ -197,7 +194,7 @@ pub fn radius(points: &[Point]) -> f64 {
 }
 
 /// Largest pairwise distance (exact, O(n^2) over the keypoints; a few thousand at most).
-pub fn diameter(points: &[Point]) -> f64 {
+pub(crate) fn diameter(points: &[Point]) -> f64 {
     let mut best = 0.0f64;
     for (i, a) in points.iter().enumerate() {
         for b in &points[i + 1..] {

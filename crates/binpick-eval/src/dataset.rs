@@ -9,12 +9,18 @@ use serde::{Deserialize, Serialize};
 use binpick_cloud::Units;
 use binpick_cloud::dataset::{Dataset, GroundTruth, ModelInfo};
 
-use crate::error::{Result, input};
-use crate::eval::{SceneScore, ThesisTable, TruthInstance, score_scene, scoring_points};
-use crate::params::Params;
-use crate::pose::from_mat4;
-use crate::recognizer::Recognizer;
-use crate::report::RecognitionReport;
+use binpick::error::{Result, input};
+use binpick::{Params, RecognitionReport, Recognizer, load_cloud};
+
+use crate::score::{DEFAULT_MATCH_FRACTION, SceneScore, ThesisTable, TruthInstance, score_scene};
+
+fn rigid(
+    m: &binpick_cloud::RowMajor4x4,
+    what: &'static str,
+    message: &str,
+) -> Result<Isometry3<f64>> {
+    binpick_cloud::pose_from_row_major(m).map_err(|_| input(what, message))
+}
 
 /// Points used for the pose-error metric (evenly strided from the model cloud).
 const SCORING_POINTS: usize = 2000;
@@ -86,15 +92,14 @@ pub fn evaluate_dataset(
         ));
     }
     let info = ModelInfo::load(&dataset.model_info_path(model))?;
-    let (model_cloud, _) = crate::load_cloud(&dataset.model_cloud_path(model), Units::Millimetres)?;
+    let (model_cloud, _) = load_cloud(&dataset.model_cloud_path(model), Units::Millimetres)?;
     let recognizer = Recognizer::new(&model_cloud, params.clone())?;
-    let points: Vec<Point3<f64>> = scoring_points(&model_cloud.points, SCORING_POINTS);
+    let points: Vec<Point3<f64>> =
+        binpick_cloud::strided_points(&model_cloud.points, SCORING_POINTS);
     let symmetries: Vec<Isometry3<f64>> = info
         .symmetries
         .iter()
-        .map(|s| {
-            from_mat4(s).ok_or_else(|| input("model info", "a symmetry is not a rigid transform"))
-        })
+        .map(|s| rigid(s, "model info", "a symmetry is not a rigid transform"))
         .collect::<Result<_>>()?;
 
     let mut run = EvalRun {
@@ -159,18 +164,16 @@ fn evaluate_scene(
     params: &Params,
     model: &str,
 ) -> Result<(RecognitionReport, SceneScore)> {
-    let (scene, _) = crate::load_cloud(scene_path, gt.units)?;
+    let (scene, _) = load_cloud(scene_path, gt.units)?;
     let recognition = recognizer.recognize(&scene)?;
     let truth: Vec<TruthInstance> = gt
         .instances
         .iter()
         .map(|i| {
-            from_mat4(&i.pose)
-                .map(|pose| TruthInstance {
-                    pose,
-                    pickable: i.pickable,
-                })
-                .ok_or_else(|| input("ground truth", "a pose is not a rigid transform"))
+            Ok(TruthInstance {
+                pose: rigid(&i.pose, "ground truth", "a pose is not a rigid transform")?,
+                pickable: i.pickable,
+            })
         })
         .collect::<Result<_>>()?;
     let detections: Vec<(usize, Isometry3<f64>)> = recognition
@@ -184,7 +187,7 @@ fn evaluate_scene(
         diameter,
         &truth,
         &detections,
-        crate::eval::DEFAULT_MATCH_FRACTION,
+        DEFAULT_MATCH_FRACTION,
     );
     let report = RecognitionReport::new(
         &scene_path.display().to_string(),
@@ -216,7 +219,7 @@ pub fn replay_scan(
     units: Units,
 ) -> ReplayResult {
     let run = || -> Result<RecognitionReport> {
-        let (scene, _) = crate::load_cloud(scan, units)?;
+        let (scene, _) = load_cloud(scan, units)?;
         let r = recognizer.recognize(&scene)?;
         Ok(RecognitionReport::new(
             &scan.display().to_string(),

@@ -1,4 +1,5 @@
-//! Greedy pick ranking (thesis 1.2 step 3, 5.4.3): the first detection is the one to pick.
+//! Stage 6, ranking: duplicate suppression (an extension) and the greedy pick ranking
+//! (thesis 1.2 step 3, 5.4.3): the first detection is the one to pick.
 //!
 //! Order: the final score (percent of outliers, 3.1.2) measures occlusion, so lower is
 //! better. Scores within the same band of `rank_score_band_pct` percentage points count as
@@ -7,7 +8,58 @@
 //! cluster index and round, so the order is total and deterministic. With a band of 0 the
 //! ranking is the thesis's: best final score first.
 
-use crate::recognizer::Detection;
+use nalgebra::{Isometry3, Point3, Vector3};
+
+use binpick_cloud::Point;
+
+use crate::result::Detection;
+use crate::validate::{NearestIndex, outlier_percent};
+
+/// Keeps, among detections of one physical instance, the one with the best final score:
+/// two detections are the same instance when `overlap` of either's placed model keypoints
+/// lie within `outlier_distance_mm` of the other's.
+pub(crate) fn suppress_duplicates(
+    mut detections: Vec<Detection>,
+    model_keypoints: &[Point],
+    outlier_distance_mm: f64,
+    overlap: f64,
+) -> Vec<Detection> {
+    detections.sort_by(|a, b| {
+        a.final_score
+            .total_cmp(&b.final_score)
+            .then(a.cluster.cmp(&b.cluster))
+            .then(a.cluster_round.cmp(&b.cluster_round))
+    });
+    let kp = model_keypoints;
+    let d = outlier_distance_mm;
+    let mut kept: Vec<(Detection, Option<NearestIndex>)> = Vec::new();
+    for det in detections {
+        let placed: Vec<Point> = kp
+            .iter()
+            .map(|q| binpick_cloud::transform_point(&det.pose, q))
+            .collect();
+        let index = NearestIndex::new(&placed).ok();
+        let duplicate = kept.iter().any(|(other, other_index)| {
+            let a = other_index
+                .as_ref()
+                .map_or(100.0, |oi| outlier_percent(oi, kp, &det.pose, d));
+            let b = index
+                .as_ref()
+                .map_or(100.0, |i| outlier_percent(i, kp, &other.pose, d));
+            (100.0 - a.min(b)) / 100.0 >= overlap
+        });
+        if !duplicate {
+            kept.push((det, index));
+        }
+    }
+    kept.into_iter().map(|(d, _)| d).collect()
+}
+
+/// Height of the placed model's centroid along `up`, mm (what the ranking picks highest).
+pub(crate) fn height_mm(pose: &Isometry3<f64>, model_keypoints: &[Point], up: [f64; 3]) -> f64 {
+    let c = Point3::from(binpick_cloud::centroid(model_keypoints).unwrap_or([0.0; 3]));
+    (pose * c).coords.dot(&Vector3::from(up).normalize())
+}
 
 fn band_of(score: f64, band: f64) -> i64 {
     if band > 0.0 {
@@ -18,7 +70,7 @@ fn band_of(score: f64, band: f64) -> i64 {
 }
 
 /// Sorts `detections` into pick order, sets `rank` (1-based) and `rank_reason`.
-pub fn rank_detections(detections: &mut [Detection], band: f64) {
+pub(crate) fn rank_detections(detections: &mut [Detection], band: f64) {
     let key_band = |d: &Detection| {
         if band > 0.0 {
             band_of(d.final_score, band)
@@ -82,7 +134,7 @@ fn ordinal(n: usize) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::align::IcpReport;
+    use crate::result::IcpReport;
     use nalgebra::Isometry3;
 
     fn det(cluster: usize, score: f64, height: f64) -> Detection {

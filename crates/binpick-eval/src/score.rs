@@ -25,8 +25,6 @@
 use nalgebra::{Isometry3, Point3};
 use serde::{Deserialize, Serialize};
 
-use binpick_cloud::Point;
-
 /// Default correctness threshold: mean model-point distance below this fraction of the
 /// model diameter.
 pub const DEFAULT_MATCH_FRACTION: f64 = 0.10;
@@ -75,16 +73,6 @@ fn mean_distance(points: &[Point3<f64>], a: &Isometry3<f64>, b: &Isometry3<f64>)
         return f64::INFINITY;
     }
     points.iter().map(|p| (a * p - b * p).norm()).sum::<f64>() / points.len() as f64
-}
-
-/// Prepares model points for scoring: at most `max_points`, evenly strided (deterministic).
-pub fn scoring_points(model: &[Point], max_points: usize) -> Vec<Point3<f64>> {
-    let step = model.len().div_ceil(max_points.max(1)).max(1);
-    model
-        .iter()
-        .step_by(step)
-        .map(|p| Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2])))
-        .collect()
 }
 
 /// Symmetry-aware pose error: min over `symmetries` S of the mean distance between the model
@@ -257,41 +245,6 @@ pub struct ThesisPercents {
     pub precision: f64,
 }
 
-/// The thesis's published percentages (5.5.2 conveyor, 5.6.2 arm), for side-by-side tables.
-/// NP is not published for the arm tests.
-pub fn thesis_reference(config: &str) -> Option<ThesisPercents> {
-    let row = |r, fnr, fp, np, fb, s| ThesisPercents {
-        recognition: r,
-        false_negatives: fnr,
-        files_with_false_positive: fp,
-        files_with_unpickable: np,
-        false_best: fb,
-        starvation: s,
-        precision: f64::NAN,
-    };
-    match config {
-        "A" => Some(row(86.0, 14.0, 2.0, 22.0, 0.0, 2.0)),
-        "B" => Some(row(73.0, 27.0, 0.0, 12.0, 0.0, 7.0)),
-        "C1" => Some(row(58.0, 42.0, 47.0, 15.0, 22.0, 10.0)),
-        "C2" => Some(row(80.0, 20.0, 70.0, 27.0, 17.0, 5.0)),
-        "C3" => Some(row(70.0, 30.0, 42.0, 25.0, 15.0, 2.0)),
-        "arm-A" => Some(row(85.0, 15.0, 20.0, f64::NAN, 3.0, 0.0)),
-        "arm-C" => Some(row(57.0, 43.0, 57.0, f64::NAN, 10.0, 7.0)),
-        _ => None,
-    }
-}
-
-/// Median and 95th percentile (nearest-rank) of `values`; (0, 0) when empty.
-pub fn median_p95(values: &[f64]) -> (f64, f64) {
-    if values.is_empty() {
-        return (0.0, 0.0);
-    }
-    let mut v = values.to_vec();
-    v.sort_by(f64::total_cmp);
-    let rank = |q: f64| v[((q * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1];
-    (rank(0.5), rank(0.95))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -432,13 +385,5 @@ mod tests {
         );
         assert!(!s.starvation && !s.false_best);
         assert_eq!(s.false_positives, 1);
-    }
-
-    #[test]
-    fn median_and_p95() {
-        let v: Vec<f64> = (1..=100).map(f64::from).collect();
-        assert_eq!(median_p95(&v), (50.0, 95.0));
-        assert_eq!(median_p95(&[7.0]), (7.0, 7.0));
-        assert_eq!(median_p95(&[]), (0.0, 0.0));
     }
 }

@@ -1,41 +1,64 @@
-//! Scene preprocessing: region of interest, resolution voxel grid (thesis 4.3 #1) and removal
-//! of the supporting surface, each step reporting how many points it removed.
-
-use serde::{Deserialize, Serialize};
+//! Stage 1, preprocessing: the units check, region of interest, resolution voxel grid (thesis
+//! 4.3 #1) and removal of the supporting surface (5.2), each step reporting how many points it
+//! removed.
 
 use binpick_cloud::{Point, PointCloud};
 
 use crate::error::{Result, input, pcl};
-use crate::params::Params;
+use crate::params::{PreprocessConfig, SupportRemoval};
+use crate::result::{PreprocessReport, RemovedPlane};
 
-/// One removed supporting plane.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct RemovedPlane {
-    /// `a x + b y + c z + d = 0`, unit normal, mm.
-    pub coefficients: [f32; 4],
-    pub points: usize,
+/// Refuses empty clouds, non-finite points and extents that mean the cloud is not in mm
+/// (both engines word it the same).
+pub(crate) fn check_units(
+    what: &'static str,
+    cloud: &PointCloud,
+    cfg: &PreprocessConfig,
+) -> Result<()> {
+    if cloud.is_empty() {
+        return Err(input(what, "the cloud is empty"));
+    }
+    if let Some(i) = cloud.first_non_finite() {
+        return Err(input(
+            what,
+            format!("point {i} has a non-finite coordinate"),
+        ));
+    }
+    let extent = cloud
+        .bounds()
+        .map(|b| f64::from(b.diagonal()))
+        .unwrap_or(0.0);
+    let min = cfg.min_extent_resolutions * cfg.resolution_mm;
+    if extent < min {
+        return Err(input(
+            what,
+            format!(
+                "its extent is {extent:.4} mm, smaller than {} x the {} mm resolution: \
+                 the cloud looks like it is in metres (binpick works in millimetres; use --units m or units = \"m\")",
+                cfg.min_extent_resolutions, cfg.resolution_mm
+            ),
+        ));
+    }
+    if extent > cfg.max_extent_mm {
+        return Err(input(
+            what,
+            format!(
+                "its extent is {extent:.0} mm (> {} m): wrong units? binpick expects millimetres",
+                cfg.max_extent_mm / 1000.0
+            ),
+        ));
+    }
+    Ok(())
 }
 
-/// What preprocessing did, in points.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct PreprocessReport {
-    pub input_points: usize,
-    /// Dropped by the region of interest.
-    pub outside_roi: usize,
-    /// Merged away by the voxel grid.
-    pub voxel_merged: usize,
-    /// Removed as supporting surface, plane by plane.
-    pub support_planes: Vec<RemovedPlane>,
-    /// Points left for clustering.
-    pub remaining: usize,
-}
-
-/// Crops, voxelises and strips support planes. `model_points` (voxelised model size) sets
-/// the smallest plane that counts as support; `threads` split the plane fits' inlier counts
+/// Crops, voxelises (thesis 4.3 #1) and strips support planes. `model_points` (voxelised
+/// model size) sets the smallest plane that counts as support; support patches are connected
+/// at the clustering tolerance `tolerance_mm`; `threads` split the plane fits' inlier counts
 /// (the result does not depend on them).
-pub fn preprocess(
+pub(crate) fn preprocess(
     scene: &PointCloud,
-    params: &Params,
+    cfg: &PreprocessConfig,
+    tolerance_mm: f64,
     model_points: usize,
     threads: usize,
 ) -> Result<(Vec<Point>, PreprocessReport)> {
@@ -52,7 +75,7 @@ pub fn preprocess(
             format!("point {i} has a non-finite coordinate"),
         ));
     }
-    let cropped: Vec<Point> = match &params.region_of_interest {
+    let cropped: Vec<Point> = match &cfg.region_of_interest {
         None => scene.points.clone(),
         Some(roi) => scene
             .points
@@ -70,12 +93,19 @@ pub fn preprocess(
             "no point lies inside the region of interest",
         ));
     }
-    let mut points = binpick_pcl::voxel_grid(&cropped, params.resolution_mm as f32)
+    let mut points = binpick_pcl::voxel_grid(&cropped, cfg.resolution_mm as f32)
         .map_err(pcl("scene voxel grid"))?;
     report.voxel_merged = cropped.len() - points.len();
 
-    if params.support.enabled {
-        points = remove_support(points, params, model_points, threads, &mut report)?;
+    if cfg.support.enabled {
+        points = remove_support(
+            points,
+            &cfg.support,
+            tolerance_mm,
+            model_points,
+            threads,
+            &mut report,
+        )?;
     }
     report.remaining = points.len();
     Ok((points, report))
@@ -89,27 +119,27 @@ pub fn preprocess(
 /// scene.
 fn remove_support(
     points: Vec<Point>,
-    params: &Params,
+    support: &SupportRemoval,
+    tolerance: f64,
     model_points: usize,
     threads: usize,
     report: &mut PreprocessReport,
 ) -> Result<Vec<Point>> {
-    let min_patch = (params.support.min_points_factor * model_points as f64)
+    let min_patch = (support.min_points_factor * model_points as f64)
         .ceil()
         .max(3.0) as usize;
-    let tolerance = params.cluster_tolerance_mm();
     let mut removed = vec![false; points.len()];
     // Indices still eligible for a plane fit.
     let mut candidates: Vec<u32> = (0..points.len() as u32).collect();
-    for _ in 0..params.support.max_planes {
+    for _ in 0..support.max_planes {
         if candidates.len() < min_patch {
             break;
         }
         let cand_pts: Vec<Point> = candidates.iter().map(|&i| points[i as usize]).collect();
         let Some(plane) = binpick_pcl::segment_plane(
             &cand_pts,
-            params.support.distance_mm as f32,
-            params.support.ransac_iterations,
+            support.distance_mm as f32,
+            support.ransac_iterations,
             threads as u32,
         )
         .map_err(pcl("support plane fit"))?

@@ -1,0 +1,266 @@
+//! One config per pipeline stage (thesis chapter 4), each with its defaults, ranges and
+//! `validate`, declared once with [`stage_config!`](super::spec). [`Params`](super::Params)
+//! is their sum, flattened into one TOML table. Lengths are millimetres.
+
+use serde::{Deserialize, Serialize};
+
+use super::spec::{Check, stage_config};
+
+/// Axis-aligned region of interest in scene coordinates, mm. Points outside are dropped
+/// before anything else.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RegionOfInterest {
+    pub min_mm: [f64; 3],
+    pub max_mm: [f64; 3],
+}
+
+/// Finite bounds with `min < max` on every axis (or no region at all).
+#[derive(Clone, Copy, Debug)]
+pub struct Roi;
+
+/// A valid optional region of interest.
+pub const fn roi() -> Roi {
+    Roi
+}
+
+impl Check<Option<RegionOfInterest>> for Roi {
+    fn ok(&self, v: &Option<RegionOfInterest>) -> bool {
+        v.is_none_or(|r| {
+            (0..3).all(|i| {
+                r.min_mm[i].is_finite() && r.max_mm[i].is_finite() && r.min_mm[i] < r.max_mm[i]
+            })
+        })
+    }
+    fn describe(&self) -> String {
+        "finite bounds with min < max on every axis".into()
+    }
+    fn show(&self, v: &Option<RegionOfInterest>) -> String {
+        format!("{v:?}")
+    }
+}
+
+/// The cloud FPFH neighbourhoods are searched in (thesis 3.3.2 leaves this open).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum FeatureSurface {
+    /// The uniform keypoints themselves (initial leaf): ~leaf^2 fewer neighbours, so FPFH is
+    /// an order of magnitude faster, with descriptors still averaged over the same radius.
+    #[default]
+    Keypoints,
+    /// The full-resolution cluster (and model) cloud.
+    Cloud,
+}
+
+stage_config! {
+    /// Removal of the supporting surface (belt, bin floor, walls) by RANSAC plane fits
+    /// (the `[support]` table). Not in the thesis (its scans were clustered directly), but
+    /// real scans contain the belt and Euclidean clustering merges everything that touches it.
+    #[serde(deny_unknown_fields)]
+    pub struct SupportRemoval {
+        /// Fit and remove planes at all.
+        enabled: bool = true, any();
+        /// Points closer than this to a plane belong to it, mm: above the scanner noise, below
+        /// the thickness of a 2 mm sheet lying flat (1.5 x resolution).
+        distance_mm: f64 = 1.5, within(0.1, 20.0, "mm");
+        /// At most this many planes are removed (floor + up to four bin walls).
+        max_planes: u32 = 5, count(0, 20, "");
+        /// A plane is support only if it has more points than this multiple of the model's
+        /// point count - more than the largest cluster a part may form (cluster_max_factor),
+        /// so a flat part is never taken for the belt.
+        min_points_factor: f64 = 3.0, within(1.0, 1e6, "x model points");
+        /// RANSAC iterations per plane fit.
+        ransac_iterations: u32 = 200, count(1, 100_000, "");
+    }
+}
+
+stage_config! {
+    /// Input checks and scene preprocessing: crop, resolution voxel grid (thesis 4.3 #1),
+    /// support removal.
+    pub struct PreprocessConfig {
+        /// Scan resolution: voxel-grid leaf applied to scene and model on load, mm (4.3 #1).
+        resolution_mm: f64 = 1.0, within(0.01, 100.0, "mm");
+        /// Optional crop of the scene before anything else.
+        #[serde(skip_serializing_if = "Option::is_none")]
+        region_of_interest: Option<RegionOfInterest> = None, roi();
+        /// Supporting-surface removal (`[support]`).
+        support: SupportRemoval = SupportRemoval::default(), any();
+        /// A cloud whose extent is below this many resolutions is refused as "not in mm".
+        min_extent_resolutions: f64 = 10.0, within(1.0, 1e6, "x resolution");
+        /// A cloud whose extent is above this is refused as "not in mm", mm.
+        max_extent_mm: f64 = 100_000.0, positive(1e9, "mm");
+    }
+}
+
+stage_config! {
+    /// Euclidean clustering of the scene (thesis 3.4.1.3, 4.3 #2-4).
+    pub struct ClusteringConfig {
+        /// Cluster tolerance as a multiple of the resolution (4.3 #2, 5.3.1; > 1 per 3.4.1.3).
+        /// The thesis uses 1.8 for robot-arm scans (5.6).
+        cluster_tolerance_factor: f64 = 1.5, within(1.0, 10.0, "x resolution");
+        /// Smallest cluster, as a fraction of the model's point count (4.3 #3).
+        cluster_min_factor: f64 = 0.3, positive(1.0, "x model points");
+        /// Largest cluster, as a multiple of the model's point count (4.3 #4).
+        cluster_max_factor: f64 = 3.0, within(1.0, 1000.0, "x model points");
+    }
+}
+
+stage_config! {
+    /// Keypoints and FPFH descriptors (thesis 3.2.3, 3.3.2, Algorithm 1 step 1a-b), for the
+    /// model and for every cluster.
+    pub struct FeatureConfig {
+        /// Leaf of the uniform keypoints for the initial alignment, mm (4.3 #5, 3.2.3).
+        initial_leaf_mm: f64 = 3.0, within(0.01, 100.0, "mm");
+        /// FPFH radii to try, mm (4.3 #6, 3.3.2).
+        fpfh_radii_mm: Vec<f64> = vec![10.0, 15.0, 20.0, 25.0, 30.0], list(1000.0, "mm");
+        /// Normal radius as a fraction of the FPFH radius (4.3 #7, 3.3.2.1).
+        normal_radius_factor: f64 = 0.8, positive(1.0, "x FPFH radius");
+        /// Where FPFH neighbourhoods are searched (see [`FeatureSurface`]).
+        feature_surface: FeatureSurface = FeatureSurface::Keypoints, any();
+        /// Sensor position in scene coordinates, mm; surface normals are flipped towards it.
+        /// Straight above: scanners looking down along -z.
+        scene_viewpoint_mm: [f64; 3] = [0.0, 0.0, 1e6], vec3();
+        /// Sensor position in the model's frame, mm (where the model was scanned from).
+        model_viewpoint_mm: [f64; 3] = [0.0, 0.0, 1e6], vec3();
+        /// Smallest usable model, in points after the resolution voxel grid.
+        min_model_points: usize = 20, count(3, 10_000_000, "points");
+    }
+}
+
+stage_config! {
+    /// Correspondences, the RANSAC threshold sweep, SVD and the Euclidean score (thesis
+    /// Algorithm 1 steps 1b-D and 2), plus the extensions that add hypotheses.
+    pub struct ConsensusConfig {
+        /// RANSAC inlier thresholds to sweep, mm (4.3 #8, 3.4.2.5).
+        sac_thresholds_mm: Vec<f64> = (1..=20).map(f64::from).collect(), list(1000.0, "mm");
+        /// RANSAC iterations per threshold (3.4.2.5).
+        sac_iterations: u32 = 50, count(1, 100_000, "");
+        /// Keep an initial alignment only if its Euclidean score (mean squared distance,
+        /// 3.1.1) is below this, mm^2 (4.3 #9).
+        initial_score_max: f64 = 100.0, positive(1e12, "mm^2");
+        /// Extension, independent RANSAC draws: each (radius, threshold) run draws from its own
+        /// fixed permutation of the correspondences. PCL seeds every run alike, so in the
+        /// thesis all thresholds of a sweep share their sample triples (then the sweep runs in
+        /// one pass).
+        independent_draws: bool = true, any();
+        /// Extension, second consensus set: consensus sets tried per threshold. 1 is the thesis
+        /// (RANSAC's largest consensus only); 2 also runs RANSAC on the correspondences the
+        /// first set left out, so the true pose of a nearly symmetric part is scored even when
+        /// its flipped pose gathers more matches. Needs independent draws.
+        consensus_modes: u32 = 2, count(1, 10, "");
+        /// Extension, near-symmetry candidates: also score each cluster's best initial
+        /// hypotheses composed with the model's near-symmetries (half-turns about its principal
+        /// axes, refined on the model itself).
+        symmetry_candidates: bool = true, any();
+        /// How many of a cluster's best hypotheses are composed with the near-symmetries.
+        symmetry_expanded: usize = 8, count(1, 1000, "hypotheses");
+        /// Extension, retry: when the best initial alignment fails the final validation, the
+        /// next best distinct ones go through ICP too, up to this many in all; the first one
+        /// accepted is kept. 1 is the thesis: on our conveyor sets 3 found no more parts and
+        /// added false positives (README, Results).
+        final_candidates: u32 = 1, count(1, 20, "");
+        /// Retried initial alignments must differ from every better one by more than this
+        /// translation, in model diameters ...
+        distinct_shift_diameters: f64 = 0.1, positive(10.0, "model diameters");
+        /// ... or this rotation, degrees.
+        distinct_angle_deg: f64 = 15.0, positive(180.0, "deg");
+    }
+}
+
+stage_config! {
+    /// The final alignment: ICP of the model's final keypoints onto the scene's (thesis
+    /// Algorithm 1 step 3, 3.6.1, 4.3 #10-11), plus the ICP extensions.
+    pub struct IcpConfig {
+        /// Leaf of the uniform keypoints for the final alignment, mm (4.3 #10).
+        final_leaf_mm: f64 = 2.0, within(0.01, 100.0, "mm");
+        /// ICP iteration cap (4.3 #11, 3.6.1).
+        icp_iterations: u32 = 50, count(1, 10_000, "");
+        /// ICP transformation epsilon (4.3 #11).
+        icp_transformation_epsilon: f64 = 1e-7, positive(1.0, "");
+        /// ICP max correspondence distance, mm. The thesis leaves PCL's default (unbounded);
+        /// bounding it keeps occluders from dragging a part.
+        icp_max_correspondence_mm: f64 = 10.0, positive(1e6, "mm");
+        /// Extension, relative-MSE stop: ICP also stops when the mean squared correspondence
+        /// distance changes by less than this fraction between iterations (PCL's Euclidean
+        /// fitness epsilon). The thesis's epsilon 1e-7 in millimetres almost never triggers, so
+        /// its ICP always runs 50 iterations. 0 = off.
+        icp_relative_mse: f64 = 1e-4, within(0.0, 0.1, "");
+        /// Extension, fine ICP pass: after the thesis's ICP on final keypoints, a second ICP of
+        /// the model at scan resolution onto the scene at scan resolution removes the
+        /// keypoint-sampling ripples that can leave a part slid along its bend line.
+        icp_refine: bool = true, any();
+        /// The fine pass runs for candidates whose percent of outliers is below this multiple
+        /// of `final_score_max_pct` (the fine fit can bring a noisy near-miss under it).
+        icp_refine_below_factor: f64 = 2.0, within(1.0, 100.0, "x final_score_max_pct");
+        /// The fine pass's correspondence distance, in resolutions.
+        icp_refine_distance_factor: f64 = 2.0, positive(100.0, "x resolution");
+    }
+}
+
+stage_config! {
+    /// The validation scores of thesis 3.1 and the acceptance of a final alignment (step 4).
+    pub struct ValidationConfig {
+        /// A model point farther than this from the scene is an outlier, mm (3.1.2.2).
+        outlier_distance_mm: f64 = 4.0, positive(1000.0, "mm");
+        /// Keep a final alignment only if its percent of outliers is below this (4.3 #12).
+        final_score_max_pct: f64 = 20.0, positive(100.0, "%");
+    }
+}
+
+stage_config! {
+    /// Extensions that search parts of a cluster (the thesis searches each cluster once,
+    /// whole, and finds at most one part in it).
+    pub struct PileSearchConfig {
+        /// Touching parts: after a part is accepted, the cluster points it explains are removed
+        /// and the rest is clustered and searched again.
+        touching_parts: bool = true, any();
+        /// Tighter re-clustering: a group larger than one part that yields nothing is split
+        /// again at `recluster_tolerance_factor` x its tolerance.
+        tighter_recluster: bool = true, any();
+        /// Fraction of the tolerance a failed group is re-clustered at ...
+        recluster_tolerance_factor: f64 = 0.75, positive(1.0, "x tolerance");
+        /// ... but not below this many resolutions (3.4.1.3: slightly above the resolution
+        /// keeps single parts whole).
+        recluster_min_tolerance_factor: f64 = 1.1, within(1.0, 10.0, "x resolution");
+        /// Sphere search: a cluster with more points than `sphere_split_factor` x the model is
+        /// searched in overlapping spheres (thesis 3.4.1.2) instead of whole: in a pile,
+        /// whole-cluster correspondences are spread over many parts.
+        sphere_search: bool = true, any();
+        /// Clusters above this multiple of the model's points are searched in spheres.
+        sphere_split_factor: f64 = 1.5, within(1.0, 1000.0, "x model points");
+        /// Distance between sphere centres, in model radii. Measured against 1.5 on our sets:
+        /// 1.0 recognises more in bins (arm-A 43.8 vs 38.4 %, arm-C 52.1 vs 50.0 %), 1.5 more
+        /// of B (74.2 vs 71.0 %) and halves the p95 time per scene.
+        sphere_spacing_factor: f64 = 1.0, within(0.5, 3.0, "model radii");
+        /// Search spheres reach this many model radii from their centre.
+        sphere_radius_factor: f64 = 1.5, within(0.5, 10.0, "model radii");
+    }
+}
+
+stage_config! {
+    /// Duplicate suppression and the pick ranking (thesis 1.2 step 3, 5.4.3).
+    pub struct RankingConfig {
+        /// Extension, duplicate suppression: among detections of one physical instance only
+        /// the best final score is kept.
+        suppress_duplicates: bool = true, any();
+        /// Two detections are the same instance when this fraction of one's model points lies
+        /// within the outlier distance of the other's.
+        duplicate_overlap: f64 = 0.5, positive(1.0, "");
+        /// Final scores in the same band of this width count as equal and the higher part is
+        /// picked first, percentage points (4.2.2; 0 = score only).
+        rank_score_band_pct: f64 = 2.0, within(0.0, 100.0, "percentage points");
+        /// Up direction of the scene (for "highest in the pile").
+        up: [f64; 3] = [0.0, 0.0, 1.0], direction();
+    }
+}
+
+stage_config! {
+    /// How a recognition runs (not what it finds: results do not depend on these).
+    pub struct RuntimeConfig {
+        /// Worker threads: clusters run in parallel, PCL's OpenMP stages use the same count
+        /// when not nested. 0 = all cores.
+        threads: usize = 0, count(0, 1024, "(0 = all cores)");
+        /// Time budget per recognition, ms; exceeding it is an error. None = unlimited.
+        #[serde(skip_serializing_if = "Option::is_none")]
+        time_budget_ms: Option<u64> = None, count(1, 86_400_000, "ms");
+    }
+}
