@@ -5,17 +5,18 @@
 //! ```text
 //! cargo run -p binpick-viz --release --example demo -- [OUT_DIR]
 //! ```
-//! Writes `demo.png`, `demo_score.png`, `demo_pile.png`, `demo.ply`, `demo_table.png` and
-//! `demo_times.png` into OUT_DIR (default: the system temp directory).
-//! `examples/demo_pile.png` beside this file is that run's `demo_pile.png`.
+//! Writes `demo.png`, `demo_score.png`, `demo_pile.png`, `demo.ply`, `demo_table.png`,
+//! `demo_bars.png` and `demo_times.png` into OUT_DIR (default: the system temp directory).
+//! `examples/demo_pile.png` and `examples/demo_table.png` beside this file are that run's
+//! `demo_pile.png` and `demo_table.png`.
 
 use std::error::Error;
 use std::path::PathBuf;
 
 use binpick_cloud::PointCloud;
 use binpick_viz::{
-    ColorBy, Percents, Placed, PlotOptions, RenderOptions, TableRow, plot_thesis_table,
-    plot_time_histogram, render_png, write_labelled_ply,
+    BarChart, BarGroup, BarMetric, Better, ColorBy, Percents, Placed, PlotOptions, RenderOptions,
+    TableRow, plot_bar_chart, plot_time_histogram, render_png, write_labelled_ply,
 };
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
@@ -257,12 +258,33 @@ fn main() -> Result<(), Box<dyn Error>> {
         &out.join("demo_pile.png"),
     )?;
 
+    // Fake counts and a fake reference (not the thesis's numbers: the caller owns those).
+    // Zeros, a reference equal to the bar, a reference at zero and a missing one show how
+    // the chart keeps each readable.
+    let fake_reference = |c: &str| -> Option<Percents> {
+        let v = match c {
+            "A" => [85.0, 15.0, 5.0, 20.0, 0.0, 2.5],
+            "B" => [75.9, 24.1, 0.0, 10.0, 0.0, f64::NAN],
+            "C1" => [60.0, 40.0, 45.0, 15.0, 20.0, 10.0],
+            "C2" => [80.0, 20.0, 60.0, 30.0, 15.0, 5.0],
+            _ => return None,
+        };
+        Some(Percents {
+            recognition: v[0],
+            false_negatives: v[1],
+            false_positives: v[2],
+            unpickable: v[3],
+            false_best: v[4],
+            starvation: v[5],
+        })
+    };
     let rows: Vec<TableRow> = [
         ("A", 40, 102, 90, 12, 2, 8, 0, 1),
-        ("B", 40, 79, 60, 19, 1, 6, 1, 2),
+        ("B", 40, 79, 60, 19, 0, 6, 0, 2),
         ("C1", 40, 80, 50, 30, 15, 6, 7, 3),
-        ("C2", 40, 80, 66, 14, 22, 10, 6, 2),
+        ("C2", 40, 80, 66, 14, 22, 10, 6, 0),
         ("C3", 40, 149, 110, 39, 14, 9, 5, 1),
+        ("empty", 0, 0, 0, 0, 0, 0, 0, 0),
     ]
     .iter()
     .map(|&(c, f, p, r, fnn, fp, np, fb, s)| TableRow {
@@ -275,10 +297,63 @@ fn main() -> Result<(), Box<dyn Error>> {
         files_with_unpickable: np,
         false_best: fb,
         starvation: s,
-        thesis: Percents::thesis_conveyor(c),
+        reference: fake_reference(c),
     })
     .collect();
-    plot_thesis_table(&rows, &PlotOptions::default(), &out.join("demo_table.png"))?;
+    let mut table = BarChart::thesis_table(&rows);
+    table.reference_name = "reference (fake)".into();
+    plot_bar_chart(
+        &table,
+        &PlotOptions {
+            title: Some("demo: table per configuration (fake data)".into()),
+            ..PlotOptions::default()
+        },
+        &out.join("demo_table.png"),
+    )?;
+    // Any metrics: a generalisation benchmark per part family, two of them with a reference.
+    let bench = BarChart {
+        metrics: vec![
+            BarMetric::new("recall", "parts found", Better::Higher),
+            BarMetric::new("false best", "first pick wrong", Better::Lower),
+            BarMetric::new("FP/scan", "false positives per scan x10", Better::Lower),
+            BarMetric::new("starvation", "scans with no pick", Better::Lower),
+        ],
+        groups: vec![
+            BarGroup {
+                name: "brackets".into(),
+                note: "30 scans".into(),
+                values: vec![92.5, 3.3, 4.0, 0.0],
+                reference: Some(vec![90.0, 5.0, f64::NAN, 0.0]),
+            },
+            BarGroup {
+                name: "flanges".into(),
+                note: "30 scans".into(),
+                values: vec![71.0, 10.0, 13.0, 6.7],
+                reference: Some(vec![75.0, 10.0, f64::NAN, 3.3]),
+            },
+            BarGroup {
+                name: "pipes".into(),
+                note: "12 scans".into(),
+                values: vec![48.2, 0.0, 25.0, 16.7],
+                reference: None,
+            },
+        ],
+        y_desc: "percent of parts or scans (%), FP per 10 scans".into(),
+        x_desc: "part family".into(),
+        reference_name: "baseline (fake)".into(),
+        decimals: 1,
+        y_top_at_least: 100.0,
+        notes: vec!["fake numbers".into()],
+    };
+    plot_bar_chart(
+        &bench,
+        &PlotOptions {
+            width: 1000,
+            height: 560,
+            title: Some("demo: any metrics per group (fake data)".into()),
+        },
+        &out.join("demo_bars.png"),
+    )?;
     let times: Vec<f64> = (0..200u64)
         .map(|k| 350.0 + 120.0 * f64::from(noise(k)) + if k % 17 == 0 { 400.0 } else { 0.0 })
         .collect();

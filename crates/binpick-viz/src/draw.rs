@@ -12,11 +12,25 @@ pub(crate) struct Fonts {
     pub bold: FontRef<'static>,
 }
 
+/// The embedded DejaVu Sans file. Every crate-internal use goes through here: `dejavu`'s
+/// functions are small enough to be inlined, and each inlined call site would carry its own
+/// 0.7 MB copy of the font.
+#[inline(never)]
+pub(crate) fn sans_regular() -> &'static [u8] {
+    dejavu::sans::regular()
+}
+
+/// The embedded DejaVu Sans Bold file (see [`sans_regular`]).
+#[inline(never)]
+pub(crate) fn sans_bold() -> &'static [u8] {
+    dejavu::sans::bold()
+}
+
 impl Fonts {
     pub fn load() -> Result<Self, VizError> {
-        let regular = FontRef::try_from_slice(dejavu::sans::regular())
+        let regular = FontRef::try_from_slice(sans_regular())
             .map_err(|_| VizError::Font("embedded DejaVu Sans is not a valid font".into()))?;
-        let bold = FontRef::try_from_slice(dejavu::sans::bold())
+        let bold = FontRef::try_from_slice(sans_bold())
             .map_err(|_| VizError::Font("embedded DejaVu Sans Bold is not a valid font".into()))?;
         Ok(Self { regular, bold })
     }
@@ -140,12 +154,6 @@ pub(crate) enum Anchor {
     Center,
     /// (x, y) is the top-right corner.
     TopRight,
-    /// (x, y) is the middle of the top edge.
-    TopCenter,
-    /// (x, y) is the middle of the right edge.
-    CenterRight,
-    /// (x, y) is the middle of the bottom edge.
-    BottomCenter,
 }
 
 /// Coverage mask of one line of text: `w x h` values in 0..=1, row-major, with `pad` pixels
@@ -267,9 +275,6 @@ pub(crate) fn text(
         Anchor::TopLeft => (x, y),
         Anchor::Center => (x - width / 2.0, y - height / 2.0),
         Anchor::TopRight => (x - width, y),
-        Anchor::TopCenter => (x - width / 2.0, y),
-        Anchor::CenterRight => (x - width, y - height / 2.0),
-        Anchor::BottomCenter => (x - width / 2.0, y - height),
     };
     let ox = left.round() as i64 - mask.pad;
     let oy = top.round() as i64 - mask.pad;
@@ -289,35 +294,6 @@ pub(crate) fn text(
         }
     }
     mask.width
-}
-
-/// Draws text turned 90 degrees counter-clockwise (reading upwards), centred at (cx, cy).
-pub(crate) fn text_vertical(
-    img: &mut RgbImage,
-    font: &FontRef<'static>,
-    px: f32,
-    cx: f64,
-    cy: f64,
-    s: &str,
-    color: Rgb,
-) {
-    let Some(mask) = text_mask(font, px, s, 0) else {
-        return;
-    };
-    if !cx.is_finite() || !cy.is_finite() {
-        return;
-    }
-    // Mask pixel (mx, my) goes to (my, w - 1 - mx) in the turned image.
-    let ox = (cx - mask.h as f64 / 2.0).round() as i64;
-    let oy = (cy - mask.w as f64 / 2.0).round() as i64;
-    for my in 0..mask.h {
-        for mx in 0..mask.w {
-            let a = mask.data[(my * mask.w + mx) as usize];
-            if a > 0.0 {
-                blend(img, ox + my, oy + (mask.w - 1 - mx), color, a);
-            }
-        }
-    }
 }
 
 /// Saves `img` as PNG, creating nothing but the file itself.

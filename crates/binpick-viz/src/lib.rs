@@ -6,7 +6,8 @@
 //!   with rank labels at the parts, a legend (rank, final score, initial score) and a title.
 //! - [`write_labelled_ply`]: one binary PLY with the scene coloured by the detection that
 //!   explains each point and the aligned models' points, for CloudCompare or MeshLab.
-//! - [`plot_thesis_table`] and [`plot_time_histogram`]: charts for `binpick eval --plots`.
+//! - [`plot_bar_chart`] (and [`plot_thesis_table`] on top of it) and [`plot_time_histogram`]:
+//!   charts for `binpick eval --plots`, drawn with `plotters`.
 //!
 //! Units are millimetres everywhere. Nothing here panics on bad input: empty clouds, absurd
 //! image sizes and invalid options are errors; NaN/infinite points are skipped and counted.
@@ -21,7 +22,9 @@ use std::path::PathBuf;
 
 pub use color::{rank_color, score_color};
 pub use plots::{
-    Percents, PlotOptions, TableRow, TimeStats, plot_thesis_table, plot_time_histogram,
+    BAR_COLORS, BarChart, BarGroup, BarMetric, Better, MAX_METRICS, MEDIAN_COLOR, P95_COLOR,
+    Percents, PlotOptions, REFERENCE_COLOR, TableRow, TimeStats, plot_bar_chart, plot_thesis_table,
+    plot_time_histogram,
 };
 pub use ply::{MODEL_SHADE, PlyInfo, UNEXPLAINED_GREY, labelled_cloud, write_labelled_ply};
 pub use render::{PixelRect, RenderInfo, ViewInfo, render_png};
