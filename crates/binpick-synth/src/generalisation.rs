@@ -230,7 +230,7 @@ pub fn generalisation_sets(scenes_per_set: Option<usize>) -> Vec<SetSpec> {
             [0, 0],
             &belt_05mm,
             &belt_05mm_env,
-            belt_corral(70.0, 100.0, 15.0),
+            belt_corral(80.0, 105.0, 15.0),
         ),
         set(
             "brackets-bin-2mm",

@@ -426,7 +426,8 @@ impl Part {
         };
         // The raw axis is z through the raw origin; its point at the part's centre height.
         let revolution_axis = matches!(geometry, Geometry::Revolved(_)).then(|| RevolutionAxis {
-            point: Point3::new(offset.x, offset.y, 0.0),
+            // (+ 0.0 turns a -0.0 into 0.0 for the written files.)
+            point: Point3::new(offset.x + 0.0, offset.y + 0.0, 0.0),
             direction: Vector3::z_axis(),
         });
         Ok(Part {
