@@ -2,11 +2,14 @@
 //!
 //! ```text
 //! DATASET/models/<name>.pcd     model cloud, mm, in the object's frame
-//! DATASET/models/<name>.json    {"diameter": mm, "symmetries": [[16 numbers, row-major 4x4], ...]}
+//! DATASET/models/<name>.json    {"diameter": mm, "symmetries": [[16 numbers, row-major 4x4], ...],
+//!                                optional "revolution_axis": {"point": [x,y,z], "direction": [x,y,z]}}
+//! DATASET/models/<name>.stl     optional: the part's exact mesh (binary STL, mm, same frame)
 //! DATASET/scenes/<id>.pcd       scene cloud, mm
 //! DATASET/gt/<id>.json          {"scene": "scenes/<id>.pcd", "model": "<name>", "units": "mm",
 //!                                "instances": [{"pose": [16 numbers, row-major, model -> scene],
-//!                                               "visible_fraction": f, "pickable": bool}, ...]}
+//!                                               "visible_fraction": f, "pickable": bool,
+//!                                               optional "visible_points": n, "alone_points": n}, ...]}
 //! ```
 //! Only instances of the named model are listed in a ground-truth file; other parts in the
 //! scene are clutter. Symmetry lists include the identity.
@@ -27,6 +30,17 @@ pub struct ModelInfo {
     /// continuous symmetry lists samples of it.
     #[serde(default = "identity_only")]
     pub symmetries: Vec<RowMajor4x4>,
+    /// For a part with a continuous rotational symmetry: the axis (model frame) about which
+    /// any rotation maps it onto itself; `symmetries` then lists samples of those rotations.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub revolution_axis: Option<RevolutionAxis>,
+}
+
+/// A line in the model frame, mm: a point on it and its direction (any length but zero).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RevolutionAxis {
+    pub point: [f64; 3],
+    pub direction: [f64; 3],
 }
 
 fn identity_only() -> Vec<RowMajor4x4> {
@@ -47,6 +61,14 @@ pub struct GtInstance {
     pub visible_fraction: f64,
     /// Whether a robot could pick it (the generator sets `visible_fraction >= 0.5`).
     pub pickable: bool,
+    /// Scene points on this instance's surface (when the generator counted them).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub visible_points: Option<u64>,
+    /// Points the same scanner sees of this part alone in the same pose; with
+    /// `visible_points`, `visible_fraction = visible_points / alone_points` (BOP's
+    /// visib_fract).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub alone_points: Option<u64>,
 }
 
 /// `gt/<id>.json`.
@@ -138,6 +160,19 @@ impl ModelInfo {
                 source,
             })?;
         }
+        if let Some(axis) = &info.revolution_axis {
+            let d = axis.direction;
+            let norm = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            let finite = axis.point.iter().chain(&d).all(|v| v.is_finite());
+            if !finite || norm < 1e-9 {
+                return Err(DatasetError::Invalid {
+                    path: path.to_owned(),
+                    message: format!(
+                        "revolution_axis needs a finite point and a non-zero direction, got {axis:?}"
+                    ),
+                });
+            }
+        }
         Ok(info)
     }
 }
@@ -220,6 +255,11 @@ impl Dataset {
         self.root.join("models").join(format!("{model}.json"))
     }
 
+    /// `models/<model>.stl`, the part's exact mesh where the dataset ships one.
+    pub fn model_mesh_path(&self, model: &str) -> PathBuf {
+        self.root.join("models").join(format!("{model}.stl"))
+    }
+
     /// Resolves a ground-truth file's `scene` entry against the dataset root.
     pub fn scene_path(&self, gt: &GroundTruth) -> PathBuf {
         self.root.join(&gt.scene)
@@ -241,6 +281,8 @@ mod tests {
                 pose: IDENTITY,
                 visible_fraction: 0.8,
                 pickable: true,
+                visible_points: None,
+                alone_points: None,
             }],
         };
         let path = dir.path().join("gt/0001.json");
@@ -270,6 +312,61 @@ mod tests {
                 .contains("diameter")
         );
         std::fs::write(&path, r#"{"diameter": 120.5}"#).unwrap();
-        assert_eq!(ModelInfo::load(&path).unwrap().symmetries, vec![IDENTITY]);
+        let old = ModelInfo::load(&path).unwrap();
+        assert_eq!(old.symmetries, vec![IDENTITY]);
+        assert_eq!(old.revolution_axis, None);
+        // Files without the optional fields are written without them.
+        write_json(&path, &old).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(!text.contains("revolution_axis"), "{text}");
+    }
+
+    #[test]
+    fn revolution_axis_round_trips_and_is_validated() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("shaft.json");
+        let info = ModelInfo {
+            diameter: 82.0,
+            symmetries: vec![IDENTITY],
+            revolution_axis: Some(RevolutionAxis {
+                point: [0.0, 0.0, 0.0],
+                direction: [0.0, 0.0, 1.0],
+            }),
+        };
+        write_json(&path, &info).unwrap();
+        assert_eq!(ModelInfo::load(&path).unwrap(), info);
+        std::fs::write(
+            &path,
+            r#"{"diameter": 82, "revolution_axis": {"point": [0, 0, 0], "direction": [0, 0, 0]}}"#,
+        )
+        .unwrap();
+        let err = ModelInfo::load(&path).unwrap_err().to_string();
+        assert!(err.contains("revolution_axis"), "{err}");
+    }
+
+    #[test]
+    fn visible_and_alone_point_counts_are_optional() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("gt/s.json");
+        let mut gt = GroundTruth {
+            scene: "scenes/s.pcd".into(),
+            model: "ring".into(),
+            units: Units::Millimetres,
+            instances: vec![GtInstance {
+                pose: IDENTITY,
+                visible_fraction: 0.25,
+                pickable: false,
+                visible_points: Some(100),
+                alone_points: Some(400),
+            }],
+        };
+        write_json(&path, &gt).unwrap();
+        assert_eq!(GroundTruth::load(&path).unwrap(), gt);
+        gt.instances[0].visible_points = None;
+        gt.instances[0].alone_points = None;
+        write_json(&path, &gt).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(!text.contains("_points"), "{text}");
+        assert_eq!(GroundTruth::load(&path).unwrap(), gt);
     }
 }

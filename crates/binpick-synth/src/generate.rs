@@ -179,6 +179,24 @@ pub fn build_pile_with<'a>(
 ) -> Result<(Pile<'a>, bool), SynthError> {
     let all: Vec<PartKind> = base.iter().chain(top).copied().collect();
     let (corral, area) = drop_zone(layout, env, &all, rng);
+    build_pile_in(lib, env, corral, area, base, top, rng, settings)
+}
+
+/// Builds a pile in a given drop zone: `base` parts dropped at random x/y inside `area`
+/// (`[xmin, xmax, ymin, ymax]`, mm) from random orientations and settled, then `top` parts
+/// over them, then the temporary `corral` (if any) is removed and everything settles.
+/// Returns the pile and whether it came to rest.
+#[allow(clippy::too_many_arguments)]
+pub fn build_pile_in<'a>(
+    lib: &'a PartLibrary,
+    env: &Environment,
+    corral: Option<[f64; 4]>,
+    area: [f64; 4],
+    base: &[PartKind],
+    top: &[PartKind],
+    rng: &mut Rng,
+    settings: PhysicsSettings,
+) -> Result<(Pile<'a>, bool), SynthError> {
     let mut pile = Pile::new(lib, env, corral, settings);
     let mut settled = true;
     if !base.is_empty() {
@@ -272,7 +290,7 @@ struct Timing {
 /// A job's group index, scene records and timing.
 type JobOutput = (usize, Vec<SceneRecord>, Timing);
 
-fn io_err(path: &Path) -> impl Fn(std::io::Error) -> SynthError + '_ {
+pub(crate) fn io_err(path: &Path) -> impl Fn(std::io::Error) -> SynthError + '_ {
     move |source| SynthError::Io {
         path: path.to_owned(),
         source,
@@ -286,6 +304,40 @@ pub fn write_cloud(path: &Path, cloud: &PointCloud) -> Result<(), SynthError> {
     }
     binpick_cloud::io::write_pcd(path, cloud)?;
     Ok(())
+}
+
+/// Writes a mesh as binary STL (mm), creating the folder.
+pub fn write_stl(path: &Path, mesh: &crate::mesh::Mesh) -> Result<(), SynthError> {
+    let io = io_err(path);
+    if let Some(parent) = path.parent() {
+        std::fs::create_dir_all(parent).map_err(io_err(parent))?;
+    }
+    let corner = |i: u32| -> Result<[f32; 3], SynthError> {
+        mesh.vertices.get(i as usize).copied().ok_or_else(|| {
+            SynthError::Geometry(format!("{}: vertex index {i} out of range", path.display()))
+        })
+    };
+    let mut triangles = Vec::with_capacity(mesh.triangles.len());
+    for t in &mesh.triangles {
+        let [a, b, c] = [corner(t[0])?, corner(t[1])?, corner(t[2])?];
+        let (a64, b64, c64) = (
+            crate::mesh::to_point3(&a),
+            crate::mesh::to_point3(&b),
+            crate::mesh::to_point3(&c),
+        );
+        let n = (b64 - a64).cross(&(c64 - a64));
+        let n = if n.norm() > 0.0 { n.normalize() } else { n };
+        triangles.push(stl_io::Triangle {
+            normal: stl_io::Normal::new([n.x as f32, n.y as f32, n.z as f32]),
+            vertices: [
+                stl_io::Vertex::new(a),
+                stl_io::Vertex::new(b),
+                stl_io::Vertex::new(c),
+            ],
+        });
+    }
+    let mut file = std::fs::File::create(path).map_err(&io)?;
+    stl_io::write_stl(&mut file, triangles.iter()).map_err(io)
 }
 
 /// Writes a scene's cloud and ground-truth files; returns its manifest record.
@@ -533,25 +585,37 @@ struct Manifest<'a> {
     groups: Vec<GroupRecord>,
 }
 
+/// Whether `root` is missing, empty, or holds a `manifest.json` written by binpick-synth.
+pub(crate) fn is_empty_or_synth_dir(root: &Path) -> Result<bool, SynthError> {
+    if !root.exists() {
+        return Ok(true);
+    }
+    let mut entries = std::fs::read_dir(root).map_err(io_err(root))?;
+    if entries.next().is_none() {
+        return Ok(true);
+    }
+    let manifest = std::fs::read_to_string(root.join("manifest.json")).unwrap_or_default();
+    Ok(manifest.contains("\"generator\": \"binpick-synth\""))
+}
+
 /// Creates `root`, or empties a dataset that binpick-synth wrote there before (its `scenes/`,
 /// `gt/` and `models/` files, manifest and README), so that no stale scene survives. Refuses a
 /// non-empty folder that is not such a dataset.
-fn prepare_out_dir(root: &Path) -> Result<(), SynthError> {
+pub(crate) fn prepare_out_dir(root: &Path) -> Result<(), SynthError> {
     let io = io_err(root);
     if root.exists() {
+        if !is_empty_or_synth_dir(root)? {
+            return Err(SynthError::InvalidOptions(format!(
+                "{} is not empty and holds no binpick-synth dataset; choose an empty folder",
+                root.display()
+            )));
+        }
         let mut entries = std::fs::read_dir(root).map_err(&io)?;
         if entries.next().is_some() {
-            let manifest = std::fs::read_to_string(root.join("manifest.json")).unwrap_or_default();
-            if !manifest.contains("\"generator\": \"binpick-synth\"") {
-                return Err(SynthError::InvalidOptions(format!(
-                    "{} is not empty and holds no binpick-synth dataset; choose an empty folder",
-                    root.display()
-                )));
-            }
             for (dir, exts) in [
                 ("scenes", &["pcd"][..]),
                 ("gt", &["json"][..]),
-                ("models", &["pcd", "json"][..]),
+                ("models", &["pcd", "json", "stl"][..]),
             ] {
                 let d = root.join(dir);
                 let Ok(list) = std::fs::read_dir(&d) else {

@@ -4,15 +4,21 @@
 //! Library" (5.1), whose scans are not public:
 //!
 //! - [`parts`]: the parts A (sheet bent 90 deg), B (sheet bent 20 deg) and C (pipe bent
-//!   twice) as exact triangle meshes with convex-hull colliders, plus their "cut" variants;
+//!   twice) as exact triangle meshes with convex-hull colliders, plus their "cut" variants,
+//!   and five families nobody tuned for (Z bracket, bent rod, stepped shaft, flat ring, bent
+//!   plate) with their true symmetry groups;
 //! - [`physics`]: piles made with rapier3d - parts dropped one by one onto a belt, a floor or
 //!   into a bin, simulated until at rest;
 //! - [`scanner`]: the dual-laser / single-camera triangulation scanner (thesis 2.2), simulated
 //!   by ray casting with parry3d: laser shadows and camera occlusion, range noise, outliers;
+//! - [`depth`]: a structured-light depth camera seen in perspective; [`sensor`] puts both
+//!   sensors behind one interface (scan a scene, scan one part alone, viewpoint);
 //! - [`models`]: model clouds (the top view of the isolated part in its canonical pose) and
 //!   ground truth (pose, visible fraction, pickable);
 //! - [`plan`] / [`generate`]: the presets `thesis-conveyor`, `thesis-arm` and `tiny` and the
-//!   dataset writer (layout in [`binpick_cloud::dataset`]).
+//!   dataset writer (layout in [`binpick_cloud::dataset`]);
+//! - [`generalisation`]: the generalisation benchmark (sets of the new families on belts, in
+//!   bins and under a depth camera, with BOP's visible fraction).
 //!
 //! Everything is in millimetres; the scene frame has z up (belt/floor at z = 0), x across the
 //! belt and y along the motion. Same seed -> byte-identical files, whatever the thread count.
@@ -31,6 +37,8 @@
 //! # Ok::<(), binpick_synth::SynthError>(())
 //! ```
 
+pub mod depth;
+pub mod generalisation;
 pub mod generate;
 pub mod mesh;
 pub mod models;
@@ -39,7 +47,13 @@ pub mod physics;
 pub mod plan;
 pub mod rng;
 pub mod scanner;
+pub mod sensor;
 
+pub use depth::DepthCameraConfig;
+pub use generalisation::{
+    BenchmarkOptions, BenchmarkSummary, SetScene, SetSpec, SetSummary, generalisation_sets,
+    generate_generalisation, make_set_scene,
+};
 pub use generate::{
     SceneRequest, Summary, SynthOptions, SynthScene, generate, make_scene, scan_instances,
     visibility_radius,
@@ -49,6 +63,7 @@ pub use parts::{Part, PartKind, PartLibrary};
 pub use physics::{Environment, Instance, Pile};
 pub use plan::{GroupPlan, Layout, Preset, plan};
 pub use scanner::{BACKGROUND, OUTLIER, Scan, ScannerConfig, SceneGeometry, scan, scan_scene};
+pub use sensor::{Sensor, Viewpoint};
 
 use std::path::PathBuf;
 

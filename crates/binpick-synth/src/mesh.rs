@@ -543,6 +543,145 @@ impl PipeSpec {
     }
 }
 
+/// A solid of revolution about the z axis made of bands stacked along z: band `[h0, h1,
+/// r_inner, r_outer]` is the tube (a cylinder when `r_inner` = 0) between heights `h0` and `h1`,
+/// mm. Each band starts where the previous one ends.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RevolvedSpec {
+    pub bands: Vec<[f64; 4]>,
+    /// Facets around the axis (vertices per ring), >= 3.
+    pub segments: usize,
+    /// Facets per convex collider piece of a hollow band (a solid band is one piece).
+    pub sector_segments: usize,
+}
+
+impl RevolvedSpec {
+    /// The closed (r, h) outline of the solid, counter-clockwise with r along x: bottom,
+    /// outer side upwards, top, inner side downwards; collinear points dropped.
+    pub fn outline(&self) -> Result<Vec<[f64; 2]>, SynthError> {
+        let bad = |m: String| Err(SynthError::Geometry(format!("revolved part: {m}")));
+        if self.bands.is_empty() || self.segments < 3 || self.sector_segments == 0 {
+            return bad("needs bands, >= 3 segments and >= 1 segment per sector".into());
+        }
+        for (i, b) in self.bands.iter().enumerate() {
+            let [h0, h1, ri, ro] = *b;
+            if !(h1 > h0 && ro > ri && ri >= 0.0) {
+                return bad(format!("band {i} {b:?} is empty or inside out"));
+            }
+            if i > 0 && (self.bands[i - 1][1] - h0).abs() > 1e-9 {
+                return bad(format!("band {i} does not start where band {} ends", i - 1));
+            }
+        }
+        let mut pts = Vec::new();
+        for b in &self.bands {
+            pts.push([b[3], b[0]]);
+            pts.push([b[3], b[1]]);
+        }
+        for b in self.bands.iter().rev() {
+            pts.push([b[2], b[1]]);
+            pts.push([b[2], b[0]]);
+        }
+        // Drop repeated and collinear points (cyclically) until none is left.
+        loop {
+            let n = pts.len();
+            let redundant = (0..n).find(|&i| {
+                let (a, b, c) = (pts[(i + n - 1) % n], pts[i], pts[(i + 1) % n]);
+                let cross = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
+                cross.abs() < 1e-12
+            });
+            match redundant {
+                Some(i) if n > 3 => {
+                    pts.remove(i);
+                }
+                _ => break,
+            }
+        }
+        Ok(pts)
+    }
+
+    /// The closed mesh (shared vertices, outward triangles) and its convex collider pieces.
+    pub fn build(&self) -> Result<SweptMesh, SynthError> {
+        let outline = self.outline()?;
+        let n = self.segments as u32;
+        let angle = |j: u32| std::f64::consts::TAU * f64::from(j % n) / f64::from(n);
+        let mut out = SweptMesh::default();
+        let mesh = &mut out.mesh;
+        // First vertex of each outline point's ring (one vertex for a point on the axis).
+        let mut first = Vec::with_capacity(outline.len());
+        for &[r, h] in &outline {
+            first.push(mesh.vertices.len() as u32);
+            if r <= 1e-12 {
+                mesh.vertices.push(f32x3(&Vector3::new(0.0, 0.0, h)));
+            } else {
+                for j in 0..n {
+                    let (s, c) = angle(j).sin_cos();
+                    mesh.vertices.push(f32x3(&Vector3::new(r * c, r * s, h)));
+                }
+            }
+        }
+        let on_axis = |i: usize| outline[i][0] <= 1e-12;
+        let vertex = |i: usize, j: u32| {
+            if on_axis(i) {
+                first[i]
+            } else {
+                first[i] + j % n
+            }
+        };
+        for a in 0..outline.len() {
+            let b = (a + 1) % outline.len();
+            if on_axis(a) && on_axis(b) {
+                continue;
+            }
+            // Outward normal of a counter-clockwise outline edge: (dh, -dr).
+            let (dr, dh) = (outline[b][0] - outline[a][0], outline[b][1] - outline[a][1]);
+            for j in 0..n {
+                let (s, c) = (angle(j) + std::f64::consts::PI / f64::from(n)).sin_cos();
+                let outward = Vector3::new(dh * c, dh * s, -dr);
+                let quad = [
+                    vertex(a, j),
+                    vertex(a, j + 1),
+                    vertex(b, j + 1),
+                    vertex(b, j),
+                ];
+                if !on_axis(a) {
+                    mesh.push_oriented([quad[0], quad[1], quad[2]], &outward);
+                }
+                if !on_axis(b) {
+                    mesh.push_oriented([quad[0], quad[2], quad[3]], &outward);
+                }
+            }
+        }
+        let ring = |r: f64, h: f64, from: u32, to: u32| -> Vec<[f32; 3]> {
+            (from..=to)
+                .map(|j| {
+                    let (s, c) = angle(j).sin_cos();
+                    f32x3(&Vector3::new(r * c, r * s, h))
+                })
+                .collect()
+        };
+        for &[h0, h1, ri, ro] in &self.bands {
+            if ri <= 1e-12 {
+                let mut piece = ring(ro, h0, 0, n - 1);
+                piece.extend(ring(ro, h1, 0, n - 1));
+                out.hulls.push(piece);
+                continue;
+            }
+            let k = (self.sector_segments as u32).min(n);
+            let mut from = 0;
+            while from < n {
+                let to = (from + k).min(n);
+                let mut piece = Vec::new();
+                for (r, h) in [(ro, h0), (ro, h1), (ri, h0), (ri, h1)] {
+                    piece.extend(ring(r, h, from, to));
+                }
+                out.hulls.push(piece);
+                from = to;
+            }
+        }
+        Ok(out)
+    }
+}
+
 /// Shifts a swept mesh (mesh and hulls) by `offset`.
 pub fn translate_swept(sm: &mut SweptMesh, offset: &Vector3<f64>) {
     let shift = |p: &mut [f32; 3]| {
@@ -614,6 +753,47 @@ mod tests {
             sm.mesh.volume()
         );
         assert_eq!(sm.hulls.len(), 1);
+    }
+
+    #[test]
+    fn revolved_outline_drops_axis_points_and_checks_bands() {
+        let shaft = RevolvedSpec {
+            bands: vec![[0.0, 10.0, 0.0, 5.0], [10.0, 30.0, 0.0, 3.0]],
+            segments: 8,
+            sector_segments: 8,
+        };
+        assert_eq!(
+            shaft.outline().unwrap(),
+            vec![
+                [5.0, 0.0],
+                [5.0, 10.0],
+                [3.0, 10.0],
+                [3.0, 30.0],
+                [0.0, 30.0],
+                [0.0, 0.0]
+            ]
+        );
+        let sm = shaft.build().unwrap();
+        // One vertex per axis point, 8 per ring; two solid bands, two pieces.
+        assert_eq!(sm.mesh.vertices.len(), 4 * 8 + 2);
+        assert_eq!(sm.hulls.len(), 2);
+        let ring = RevolvedSpec {
+            bands: vec![[-1.0, 1.0, 2.0, 4.0]],
+            segments: 12,
+            sector_segments: 3,
+        };
+        assert_eq!(ring.build().unwrap().hulls.len(), 4);
+        for bad in [
+            vec![[0.0, 10.0, 4.0, 3.0]],
+            vec![[0.0, 10.0, 0.0, 3.0], [11.0, 12.0, 0.0, 2.0]],
+            vec![],
+        ] {
+            let spec = RevolvedSpec {
+                bands: bad.clone(),
+                ..ring.clone()
+            };
+            assert!(spec.build().is_err(), "{bad:?}");
+        }
     }
 
     #[test]

@@ -2,26 +2,34 @@
 //!
 //! A model is the top view of the isolated part lying in its canonical stable pose, scanned by
 //! a noise-free 0.5 x 0.5 mm version of the conveyor scanner, keeping only the part's points,
-//! expressing them in the part's own frame and evening out the density on a 0.5 mm voxel grid. Cut models are the points of the full model
-//! that lie in the part's cut range (same frame).
+//! expressing them in the part's own frame and evening out the density on a 0.5 mm voxel
+//! grid. Cut models are the points of the full model that lie in the part's cut range (same
+//! frame). Every model also carries the exact mesh of what it shows.
 //!
-//! Visible fraction of an instance: the share of the model's points that, moved by the true
-//! pose, have a scan point of that same instance (the scanner records which instance each ray
-//! hit; outliers do not count) within `tolerance` mm. For a model with symmetries the best
-//! symmetric equivalent counts, and the ground-truth pose is that equivalent (`pose * S`: the
-//! one whose model points face the scanner).
+//! Two visible fractions:
+//!
+//! - [`ground_truth`] (the thesis presets): the share of the model's points that, moved by the
+//!   true pose, have a scan point of that same instance (the scanner records which instance
+//!   each ray hit; outliers do not count) within `tolerance` mm. For a model with symmetries
+//!   the best symmetric equivalent counts, and the ground-truth pose is that equivalent
+//!   (`pose * S`: the one whose model points face the scanner). A top-view model makes a part
+//!   lying upside down look invisible, which is why the generalisation benchmark uses:
+//! - [`ground_truth_alone`] (BOP's visib_fract): the scene's points on the instance over the
+//!   points the same sensor sees of the part alone in the same pose.
 
 use std::collections::HashMap;
 
 use nalgebra::Isometry3;
 
-use binpick_cloud::dataset::{GroundTruth, GtInstance, ModelInfo};
+use binpick_cloud::dataset::{GroundTruth, GtInstance, ModelInfo, RevolutionAxis};
 use binpick_cloud::{PointCloud, Units, pose_to_row_major, transform_point};
 
 use crate::SynthError;
+use crate::mesh::Mesh;
 use crate::parts::{PartKind, PartLibrary};
 use crate::physics::{Environment, Instance, canonical_pose};
 use crate::scanner::{BACKGROUND, OUTLIER, Scan, ScannerConfig, SceneGeometry, scan};
+use crate::sensor::Sensor;
 
 /// Model names, in the order they are written.
 pub const MODEL_NAMES: [&str; 5] = ["A", "A-cut", "B", "C", "C-cut"];
@@ -39,16 +47,29 @@ pub struct Model {
     pub cloud: PointCloud,
     /// Rigid symmetries, identity first.
     pub symmetries: Vec<Isometry3<f64>>,
-    /// Largest distance between two points of `cloud`, mm.
+    /// The part's axis of revolution, if it has one.
+    pub revolution_axis: Option<crate::parts::RevolutionAxis>,
+    /// Largest distance between two points of `cloud` (thesis parts) or of the part's mesh
+    /// (the other families), mm.
     pub diameter: f64,
+    /// The exact mesh of what the model shows (the part, or its cut portion), part frame, mm.
+    pub mesh: Mesh,
 }
 
 impl Model {
     /// `models/<name>.json`.
     pub fn info(&self) -> ModelInfo {
+        let axis = self
+            .revolution_axis
+            .filter(|_| !self.cut)
+            .map(|a| RevolutionAxis {
+                point: a.point.coords.into(),
+                direction: a.direction.into_inner().into(),
+            });
         ModelInfo {
             diameter: self.diameter,
             symmetries: self.symmetries.iter().map(pose_to_row_major).collect(),
+            revolution_axis: axis,
         }
     }
 }
@@ -82,7 +103,7 @@ pub fn cloud_diameter(cloud: &PointCloud) -> f64 {
     best.sqrt()
 }
 
-/// The parts, their canonical poses and the five models.
+/// The parts, their canonical poses and the models built for some of them.
 #[derive(Clone, Debug)]
 pub struct ModelLibrary {
     pub parts: PartLibrary,
@@ -92,25 +113,42 @@ pub struct ModelLibrary {
 }
 
 impl ModelLibrary {
-    /// Builds parts and models (deterministic; a fraction of a second).
+    /// Builds the parts and the thesis's five models (deterministic; a fraction of a second).
     pub fn build() -> Result<Self, SynthError> {
+        Self::build_for(&PartKind::THESIS, true)
+    }
+
+    /// Builds the parts and the models of `kinds` (in that order), with the cut models of
+    /// the parts that have one when `with_cuts`.
+    pub fn build_for(kinds: &[PartKind], with_cuts: bool) -> Result<Self, SynthError> {
         let parts = PartLibrary::new()?;
-        let mut canonical = Vec::new();
+        let canonical = PartKind::ALL
+            .iter()
+            .map(|&kind| canonical_pose(&parts, kind))
+            .collect::<Result<Vec<_>, _>>()?;
         let mut models = Vec::new();
-        for kind in PartKind::ALL {
-            let pose = canonical_pose(&parts, kind)?;
+        for &kind in kinds {
+            let pose = canonical[kind.index()];
             let full = scan_isolated(&parts, kind, &pose)?;
-            canonical.push(pose);
             let part = parts.get(kind);
+            // The thesis's models keep the diameter of their cloud (the thesis tables were
+            // measured with it); the other families use their exact mesh, as BOP does.
+            let diameter = if PartKind::THESIS.contains(&kind) {
+                cloud_diameter(&full)
+            } else {
+                cloud_diameter(&PointCloud::new(part.mesh.vertices.clone()))
+            };
             models.push(Model {
                 name: kind.name().to_owned(),
                 part: kind,
                 cut: false,
-                diameter: cloud_diameter(&full),
-                symmetries: vec![Isometry3::identity()],
+                diameter,
+                symmetries: part.symmetries(),
+                revolution_axis: part.revolution_axis,
                 cloud: full.clone(),
+                mesh: part.mesh.clone(),
             });
-            if part.cut_range.is_some() {
+            if let (true, Some(cut_mesh)) = (with_cuts, part.cut_mesh()?) {
                 let cut = PointCloud::new(
                     full.points
                         .iter()
@@ -124,7 +162,9 @@ impl ModelLibrary {
                     cut: true,
                     diameter: cloud_diameter(&cut),
                     symmetries: part.cut_symmetries(),
+                    revolution_axis: None,
                     cloud: cut,
+                    mesh: cut_mesh,
                 });
             }
         }
@@ -321,6 +361,8 @@ pub fn ground_truth(
                 pose: pose_to_row_major(&pose),
                 visible_fraction: vf,
                 pickable: vf >= PICKABLE_FRACTION,
+                visible_points: None,
+                alone_points: None,
             });
         }
         out.push(GroundTruth {
@@ -334,6 +376,89 @@ pub fn ground_truth(
         return Err(SynthError::Geometry(
             "no model for the scene's parts".into(),
         ));
+    }
+    Ok(out)
+}
+
+/// Scene points on each instance's own surface (speckle outliers excluded), by instance.
+pub fn visible_points(scan: &Scan, instances: usize) -> Vec<u64> {
+    let mut counts = vec![0u64; instances];
+    for &l in &scan.labels {
+        if let Some(c) = counts.get_mut(l as usize) {
+            *c += 1;
+        }
+    }
+    counts
+}
+
+/// BOP's visible fraction (visib_fract) of every instance: the scene's points on its own
+/// surface over the points the same sensor sees of the part alone in the same pose (same
+/// sample positions and random streams, seed `seed`), capped at 1; 0 when the part alone
+/// gives no point. Returns (fraction, visible points, alone points) per instance.
+pub fn alone_visibility(
+    instances: &[Instance],
+    scan: &Scan,
+    sensor: &Sensor,
+    seed: u64,
+    parts: &PartLibrary,
+) -> Result<Vec<(f64, u64, u64)>, SynthError> {
+    let visible = visible_points(scan, instances.len());
+    instances
+        .iter()
+        .zip(visible)
+        .map(|(inst, seen)| {
+            let alone = sensor.scan_alone(&parts.get(inst.kind).mesh, &inst.pose, seed)?;
+            let alone = alone.labels.iter().filter(|&&l| l == 0).count() as u64;
+            let fraction = if alone == 0 {
+                0.0
+            } else {
+                (seen as f64 / alone as f64).min(1.0)
+            };
+            Ok((fraction, seen, alone))
+        })
+        .collect()
+}
+
+/// Ground truth with BOP's visible fraction ([`alone_visibility`]): independent of any model
+/// cloud, so a part lying upside down is exactly as visible as the scan shows it. One file
+/// per model in `models` (full models) whose part is in the scene, listing every instance of
+/// that part (buried ones too) at its physics pose.
+pub fn ground_truth_alone(
+    scene_path: &str,
+    instances: &[Instance],
+    scan: &Scan,
+    sensor: &Sensor,
+    seed: u64,
+    parts: &PartLibrary,
+    models: &[&Model],
+) -> Result<Vec<GroundTruth>, SynthError> {
+    let vis = alone_visibility(instances, scan, sensor, seed, parts)?;
+    let mut out = Vec::new();
+    for model in models {
+        if !instances.iter().any(|i| i.kind == model.part) {
+            continue;
+        }
+        let gt_instances = instances
+            .iter()
+            .zip(&vis)
+            .filter(|(inst, _)| inst.kind == model.part)
+            .map(|(inst, &(fraction, seen, alone))| {
+                let vf = (fraction * 1e4).round() / 1e4;
+                GtInstance {
+                    pose: pose_to_row_major(&inst.pose),
+                    visible_fraction: vf,
+                    pickable: vf >= PICKABLE_FRACTION,
+                    visible_points: Some(seen),
+                    alone_points: Some(alone),
+                }
+            })
+            .collect();
+        out.push(GroundTruth {
+            scene: scene_path.to_owned(),
+            model: model.name.clone(),
+            units: Units::Millimetres,
+            instances: gt_instances,
+        });
     }
     Ok(out)
 }

@@ -20,6 +20,8 @@
 //! (`noise_sigma`); with probability `outlier_rate` it is instead a speckle outlier displaced
 //! by 2-25 mm (either way) along the camera ray, as a wrong laser-peak detection would give.
 
+use std::ops::Range;
+
 use nalgebra::Isometry3;
 use rapier3d::parry::math::Vector as PVec;
 use rapier3d::parry::query::{Ray, RayCast};
@@ -259,7 +261,12 @@ impl SceneGeometry {
 
     /// First hit along `origin + t * dir` (`dir` unit), t in (0, max_t]: (t, unit normal facing
     /// the ray, owner).
-    fn first_hit(&self, origin: PVec, dir: PVec, max_t: f32) -> Option<(f32, PVec, u32)> {
+    pub(crate) fn first_hit(
+        &self,
+        origin: PVec,
+        dir: PVec,
+        max_t: f32,
+    ) -> Option<(f32, PVec, u32)> {
         let t_floor = match self.floor {
             Some(_) if dir.z < 0.0 && origin.z > 0.0 => -origin.z / dir.z,
             _ => f32::INFINITY,
@@ -283,7 +290,7 @@ impl SceneGeometry {
 
     /// Whether anything lies on the open segment from `from` to `to` (ends excluded by
     /// `margin` mm). The floor never blocks (rays end above or on it).
-    fn blocked(&self, from: PVec, to: PVec, margin: f32) -> bool {
+    pub(crate) fn blocked(&self, from: PVec, to: PVec, margin: f32) -> bool {
         let d = to - from;
         let len = d.length();
         if len <= margin {
@@ -342,12 +349,53 @@ fn measure(
 /// Scans the geometry. Deterministic in `seed`; lines are processed in parallel with one
 /// random stream per line, so the output does not depend on the number of threads.
 pub fn scan(geom: &SceneGeometry, cfg: &ScannerConfig, seed: u64) -> Scan {
-    let lines = cfg.lines();
+    scan_window(geom, cfg, seed, 0..cfg.lines(), 0..cfg.columns.max(1))
+}
+
+impl ScannerConfig {
+    /// The scan lines and columns whose rays can meet anything inside `bounds` (scene frame,
+    /// mm, above the belt): a sub-grid of the full scan, for scanning one part alone quickly.
+    pub fn window_for(&self, bounds: &binpick_cloud::Aabb) -> (Range<usize>, Range<usize>) {
+        let (lo, hi) = (bounds.min.map(f64::from), bounds.max.map(f64::from));
+        let top = hi[2].max(0.0);
+        // A laser at y_s -/+ laser_offset reaches height z at y_s -/+ offset * z / height;
+        // its fan spreads from x = 0, so a target column x_t reaches height z at
+        // x_t * (1 - z / height).
+        let along = self.laser_offset * top / self.laser_height + self.line_spacing();
+        let (y_lo, y_hi) = (lo[1] - along, hi[1] + along);
+        let spread = 1.0 / (1.0 - top / self.laser_height).max(1e-3);
+        let x_lo = lo[0].min(lo[0] * spread) - self.column_spacing();
+        let x_hi = hi[0].max(hi[0] * spread) + self.column_spacing();
+        let dy = self.line_spacing();
+        let dx = self.column_spacing();
+        let index = |v: f64, origin: f64, step: f64, n: usize| -> usize {
+            ((v - origin) / step).floor().clamp(0.0, n as f64) as usize
+        };
+        let lines = self.lines();
+        let cols = self.columns.max(1);
+        let l0 = index(y_lo, self.y_range[0], dy, lines);
+        let l1 = (index(y_hi, self.y_range[0], dy, lines) + 2).min(lines);
+        let c0 = index(x_lo, self.x_range[0], dx, cols);
+        let c1 = (index(x_hi, self.x_range[0], dx, cols) + 2).min(cols);
+        (l0..l1.max(l0), c0..c1.max(c0))
+    }
+}
+
+/// [`scan`] restricted to scan lines `lines` and camera columns `columns` of the full grid
+/// (same sample positions; each line keeps its own random stream, drawn from the window's
+/// first column on).
+pub fn scan_window(
+    geom: &SceneGeometry,
+    cfg: &ScannerConfig,
+    seed: u64,
+    lines: Range<usize>,
+    columns: Range<usize>,
+) -> Scan {
     let dy = cfg.line_spacing();
-    let cols = cfg.columns.max(1);
+    let cols = columns.len();
     let dx = cfg.column_spacing();
     let dedup = (0.5 * dy.min(dx)) as f32;
-    let per_line: Vec<(Vec<[f32; 3]>, Vec<u32>)> = (0..lines)
+    let per_line: Vec<(Vec<[f32; 3]>, Vec<u32>)> = lines
         .into_par_iter()
         .map(|i| {
             let mut rng = Rng::new(derive_seed(seed, "scan-line", i as u64));
@@ -357,7 +405,7 @@ pub fn scan(geom: &SceneGeometry, cfg: &ScannerConfig, seed: u64) -> Scan {
             let laser2 = PVec::new(0.0, (ys + cfg.laser_offset) as f32, cfg.laser_height as f32);
             let mut pts = Vec::with_capacity(cols);
             let mut labels = Vec::with_capacity(cols);
-            for j in 0..cols {
+            for j in columns.clone() {
                 let x = cfg.x_range[0] + (j as f64 + 0.5) * dx;
                 let target = PVec::new(x as f32, ys as f32, 0.0);
                 let m1 = measure(geom, cfg, laser1, target, camera);
