@@ -16,8 +16,8 @@ use std::panic::{AssertUnwindSafe, catch_unwind};
 
 use binpick_cloud::PointCloud;
 use binpick_cloud::io::{
-    IoError, PcdEncoding, PlyEncoding, read_cloud, read_cloud_from_bytes,
-    read_cloud_with_colors_from_bytes,
+    IoError, PcdEncoding, PlyEncoding, ReadLimits, read_cloud, read_cloud_from_bytes,
+    read_cloud_with_colors_from_bytes, read_cloud_with_from_bytes,
 };
 use common::*;
 
@@ -245,7 +245,24 @@ fn lying_point_counts() {
                 PcdEncoding::BinaryCompressed if big.len() > 19 => "overflows",
                 PcdEncoding::BinaryCompressed => "compressed block unpacks to",
             };
-            expect_err(&label, "lie.pcd", &lie, want);
+            // Counts above the default limit are refused from the header alone; with the
+            // limit lifted, the data checks still catch the lie without allocating for it.
+            if big.parse::<u64>().unwrap() > 50_000_000 {
+                expect_err(
+                    &label,
+                    "lie.pcd",
+                    &lie,
+                    &format!("{big} points, more than the limit of 50000000 points"),
+                );
+            } else {
+                expect_err(&label, "lie.pcd", &lie, want);
+            }
+            let unlimited = ReadLimits {
+                max_points: usize::MAX,
+                ..ReadLimits::default()
+            };
+            let e = read_cloud_with_from_bytes(&lie, "lie.pcd", &unlimited).unwrap_err();
+            assert!(e.to_string().contains(want), "{label} unlimited: {e}");
         }
         // WIDTH or POINTS alone changed.
         expect_err(
@@ -322,11 +339,21 @@ fn lying_point_counts() {
             &replace_in_header(&v, "element vertex 40", "element vertex 41"),
             "truncated: ",
         );
+        let huge = replace_in_header(&v, "element vertex 40", "element vertex 4000000000");
         expect_err(
             &format!("{label} huge"),
             "v.ply",
-            &replace_in_header(&v, "element vertex 40", "element vertex 4000000000"),
-            "truncated: ",
+            &huge,
+            "4000000000 points, more than the limit of 50000000 points",
+        );
+        let unlimited = ReadLimits {
+            max_points: usize::MAX,
+            ..ReadLimits::default()
+        };
+        let e = read_cloud_with_from_bytes(&huge, "v.ply", &unlimited).unwrap_err();
+        assert!(
+            e.to_string().contains("truncated: "),
+            "{label} unlimited: {e}"
         );
         expect_err(
             &format!("{label} fewer"),
