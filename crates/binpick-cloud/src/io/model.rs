@@ -167,7 +167,10 @@ pub(crate) fn build(
     if faces_in_file == 0 {
         return Err(mesh_err(
             path,
-            format!("contains no faces ({n} vertices): a mesh model needs triangles"),
+            format!(
+                "contains no faces ({} vertices): a mesh model needs triangles",
+                raw.vertices_in_file.unwrap_or(n)
+            ),
         ));
     }
 
