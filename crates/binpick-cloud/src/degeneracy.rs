@@ -149,7 +149,7 @@ mod tests {
         );
         let line = PointCloud::new(
             (0..50)
-                .map(|i| [i as f32 * 2.0 + 10.0, i as f32 * -1.0, 3.0 * i as f32])
+                .map(|i| [i as f32 * 2.0 + 10.0, -(i as f32), 3.0 * i as f32])
                 .collect(),
         );
         let d = line.degeneracy().unwrap();

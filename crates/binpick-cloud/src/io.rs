@@ -1,4 +1,7 @@
-//! PCD and PLY reading and writing, in pure Rust.
+//! PCD and PLY clouds (read and write) and STL, OBJ and PLY meshes (read), in pure Rust.
+//!
+//! Clouds are read with [`read_cloud`] and its variants; part models, which may be a cloud or
+//! a CAD mesh, with [`read_model`] (see [`Model`]).
 //!
 //! # Supported formats
 //!
@@ -10,6 +13,9 @@
 //! | PLY `ascii 1.0` | yes | yes ([`PlyEncoding::Ascii`]) |
 //! | PLY `binary_little_endian 1.0` | yes | yes ([`PlyEncoding::BinaryLittleEndian`]) |
 //! | PLY `binary_big_endian 1.0` | yes | yes ([`PlyEncoding::BinaryBigEndian`]) |
+//! | PLY with a `face` element | as a mesh ([`read_model`]) or its vertices as a cloud | no |
+//! | STL ASCII and binary | as a mesh ([`read_model`], through `stl_io`) | no |
+//! | OBJ (`v`, `f`) | as a mesh ([`read_model`], through `tobj`) | no |
 //!
 //! **Reading PCD** accepts any field layout that contains `x`, `y` and `z` (each with
 //! `COUNT 1`, of any numeric type; `F4` and `F8` are the usual ones): extra fields such as
@@ -17,14 +23,26 @@
 //! PCL padding fields named `_`, and every valid `TYPE`/`SIZE` pair (`F` 4/8, `U` and `I`
 //! 1/2/4/8). Organised clouds (`HEIGHT > 1`) are read row by row into an unorganised cloud;
 //! [`LoadReport::width`] and [`LoadReport::height`] keep the original shape. As in PCL,
-//! `WIDTH x HEIGHT` must equal `POINTS`, blank lines in ASCII data are skipped, `COUNT 0`
-//! means 1, and bytes after the data (PCL pads its files with zeros) are ignored. Colours
+//! `WIDTH x HEIGHT` must equal `POINTS`, blank lines in ASCII data are skipped and `COUNT 0`
+//! means 1. `POINTS` must also match the data: zero bytes after the data are PCL's padding
+//! and ignored, but more data than `POINTS` (more ASCII rows, more binary points, a longer
+//! compressed block) is an error stating both counts, never a silent prefix of the cloud.
+//! The `VIEWPOINT` line is parsed into [`LoadReport::viewpoint`]. Colours
 //! come from an `rgb` or `rgba` field of 4 bytes (`F4` bits or `U4`); in ASCII an integer
 //! token is the packed value and a decimal one a float whose bits are the packed value.
 //!
 //! **Reading PLY** takes the `vertex` element's `x`, `y`, `z` properties (any numeric scalar
 //! type) and, when present, `red`/`green`/`blue`; every other element (faces, edges, ...) is
-//! parsed for validation and then ignored.
+//! parsed for validation and then ignored by [`read_cloud`]. The vertex count must match
+//! the data (both counts are stated otherwise).
+//!
+//! **Reading meshes** ([`read_model`]): every format goes through one set of checks
+//! (indices in range, finite coordinates, polygons split into fans, zero-area triangles
+//! skipped and counted, vertices at one position merged, closed meshes wound outward); see
+//! [`MeshReport`] for what is counted.
+//!
+//! **Limits**: [`ReadLimits`] bounds the points and faces a file may hold (50 million each
+//! by default), checked from the header before the data is read.
 //!
 //! **Non-finite points**: a point with a NaN or infinite coordinate (or an `F8`/PLY `double`
 //! coordinate outside the `f32` range) is dropped and counted in
@@ -34,22 +52,24 @@
 //! **Units**: coordinates are stored and returned as they are in the file. binpick works in
 //! millimetres; converting a file in metres is the caller's job (see [`crate::Units`]).
 //!
-//! **Writing** always stores `x y z` as `float32`, with an optional per-point colour: in
+//! **Writing** (PCD, PLY clouds) always stores `x y z` as `float32`, with an optional per-point colour: in
 //! binary PCD an `rgb` field of type `F4` packed as PCL does (`0x00RRGGBB` reinterpreted as
 //! a float), in ASCII PCD an `rgb` field of type `U4` holding that integer (what PCL 1.13
 //! writes: it reads an ASCII `F4` token as a float value), in PLY `uchar red green blue`.
 //! ASCII output prints every coordinate with the shortest decimal that parses back to the
 //! same `f32`, so ASCII round trips are exact too. Written clouds are unorganised
 //! (`HEIGHT 1`). Non-finite coordinates are written as they are (`nan`, `inf`); readers drop
-//! them again. An empty cloud can be written, but reading that file back is an error.
+//! them again. An empty cloud can be written, but reading that file back is an error. PCD
+//! files get a `VIEWPOINT` line: PCL's default, or the one given to
+//! [`write_pcd_with_viewpoint`].
 //!
 //! # Robustness
 //!
 //! Readers never panic and never size a buffer from a header's counts alone: counts are
 //! checked against the bytes that follow (for `binary_compressed`, the LZF stream is walked
 //! without decoding to check the length it really unpacks to) before anything is allocated,
-//! so memory stays proportional to the data actually present. Every error names the file (the path, or the name passed to
-//! [`read_cloud_from_bytes`]) and says what is wrong, e.g.
+//! so memory stays proportional to the data actually present. Every error names the file
+//! (the path, or the name passed to [`read_cloud_from_bytes`]) and says what is wrong, e.g.
 //! `scene.pcd: truncated: header says 5000 points of 16 bytes (80000 bytes) but only 1200 bytes follow`.
 //!
 //! The `pcd-rs` crate decodes binary and LZF-compressed PCD data and writes binary and
@@ -57,7 +77,9 @@
 //! some lying headers); `ply-rs-bw` parses PLY headers and binary PLY payloads and writes
 //! PLY. ASCII PCD and ASCII PLY payloads are parsed here (pcd-rs rejects blank lines and
 //! reads an integer `rgb` token as a float value; ply-rs-bw rejects `nan`, `inf` and numbers
-//! such as `.5`).
+//! such as `.5`). `stl_io` decodes STL triangles once this module has decided ASCII or
+//! binary and checked a binary file's triangle count against its size; `tobj` parses OBJ.
+//! Every reader is fuzzed (`fuzz/`) and mutation-tested (`tests/io_mutations.rs`).
 
 mod model;
 mod obj;
@@ -72,7 +94,8 @@ use std::path::{Path, PathBuf};
 use crate::{Point, PointCloud};
 
 pub use model::{
-    LoadedMesh, MeshFormat, MeshReport, Model, read_model, read_model_from_bytes, read_model_with,
+    DEGENERATE_AREA_FRACTION, LoadedMesh, MeshFormat, MeshReport, Model, read_model,
+    read_model_from_bytes, read_model_with,
 };
 
 /// Default of [`ReadLimits::max_points`]: ten times a 5-megapixel scan.

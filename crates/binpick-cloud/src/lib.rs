@@ -12,7 +12,7 @@ pub mod io;
 pub mod mesh;
 pub mod rng;
 
-pub use degeneracy::Degeneracy;
+pub use degeneracy::{COLLINEAR_TOLERANCE, Degeneracy};
 pub use mesh::{SampleError, SurfaceSamples, SurfaceSampling, TriangleMesh};
 
 use nalgebra::{Isometry3, Point3};

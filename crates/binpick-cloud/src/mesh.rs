@@ -251,11 +251,12 @@ impl TriangleMesh {
         }
         self.check()?;
         let area = self.area();
-        if !(area > 0.0) {
+        // NaN-safe: a NaN area fails too.
+        if area.is_nan() || area <= 0.0 {
             return Err(SampleError::NoArea);
         }
         let expected = area / (spacing * spacing);
-        if !(expected <= params.max_points as f64) {
+        if expected.is_nan() || expected > params.max_points as f64 {
             return Err(SampleError::TooManySamples {
                 area,
                 spacing_mm: spacing,

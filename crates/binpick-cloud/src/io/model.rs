@@ -137,9 +137,6 @@ pub(crate) struct RawMesh {
     pub vertices: Vec<[f64; 3]>,
     pub faces: FaceLists,
     pub other_elements_ignored: usize,
-    /// Vertices in the file when the reader already left some out of `vertices` (tobj keeps
-    /// only the used ones); `None` when `vertices` is every vertex of the file.
-    pub vertices_in_file: Option<usize>,
 }
 
 fn fmt_point(p: &[f64; 3]) -> String {
@@ -167,10 +164,7 @@ pub(crate) fn build(
     if faces_in_file == 0 {
         return Err(mesh_err(
             path,
-            format!(
-                "contains no faces ({} vertices): a mesh model needs triangles",
-                raw.vertices_in_file.unwrap_or(n)
-            ),
+            format!("contains no faces ({n} vertices): a mesh model needs triangles"),
         ));
     }
 
@@ -287,7 +281,6 @@ pub(crate) fn build(
         }
     }
     let used = file_used.iter().filter(|&&u| u).count();
-    let vertices_in_file = raw.vertices_in_file.unwrap_or(n);
     let mut mesh = TriangleMesh::new(vertices, triangles);
     let closed = mesh.is_closed();
     let winding_reversed = closed && mesh.signed_volume() < 0.0;
@@ -297,11 +290,11 @@ pub(crate) fn build(
     let report = MeshReport {
         format,
         encoding,
-        vertices_in_file,
+        vertices_in_file: n,
         faces_in_file,
         polygons_split,
         degenerate_skipped: degenerate,
-        unused_vertices: vertices_in_file.saturating_sub(n) + (n - used),
+        unused_vertices: n - used,
         duplicate_vertices_merged: used - mesh.vertices.len(),
         other_elements_ignored: raw.other_elements_ignored,
         closed,

@@ -7,6 +7,7 @@
 //! polylines (`p`, `l`: tobj would turn a three-point polyline into a triangle). Those are
 //! counted in [`super::MeshReport::other_elements_ignored`] when they are points or lines.
 
+use std::collections::HashMap;
 use std::io::Cursor;
 use std::path::Path;
 
@@ -17,15 +18,30 @@ fn tokens(line: &str) -> impl Iterator<Item = &str> {
     line.split_whitespace()
 }
 
+/// The position of a `v` line as tobj computes it (`x y z`, divided by `w` when a fourth
+/// value is given); NaN when it does not parse (tobj then fails on the line anyway).
+fn position(line: &str) -> [f32; 3] {
+    let vals: Vec<&str> = tokens(line).skip(1).collect();
+    let num = |k: usize| vals.get(k).and_then(|t| t.parse::<f32>().ok());
+    let (Some(x), Some(y), Some(z)) = (num(0), num(1), num(2)) else {
+        return [f32::NAN; 3];
+    };
+    match (vals.len(), num(3)) {
+        (4, Some(w)) => [x / w, y / w, z / w],
+        _ => [x, y, z],
+    }
+}
+
 pub(super) fn read(bytes: &[u8], path: &Path, limits: &ReadLimits) -> Result<RawMesh, IoError> {
     let mut filtered: Vec<u8> = Vec::with_capacity(bytes.len() + 1);
-    let (mut v_lines, mut f_lines, mut ignored) = (0usize, 0usize, 0usize);
+    let (mut f_lines, mut ignored) = (0usize, 0usize);
+    let mut file_vertices: Vec<[f32; 3]> = Vec::new();
     for (i, line) in bytes.split(|&b| b == b'\n').enumerate() {
         let text = std::str::from_utf8(line)
             .map_err(|_| format_err(path, format!("line {}: not text (invalid UTF-8)", i + 1)))?;
         let keep = match tokens(text).next() {
             Some("v") => {
-                v_lines += 1;
+                file_vertices.push(position(text));
                 true
             }
             Some("f") => {
@@ -44,6 +60,7 @@ pub(super) fn read(bytes: &[u8], path: &Path, limits: &ReadLimits) -> Result<Raw
         }
         filtered.push(b'\n');
     }
+    let v_lines = file_vertices.len();
     limits.check_points(path, v_lines as u64)?;
     limits.check_faces(path, f_lines as u64)?;
 
@@ -52,7 +69,6 @@ pub(super) fn read(bytes: &[u8], path: &Path, limits: &ReadLimits) -> Result<Raw
         triangulate: false,
         ignore_points: true,
         ignore_lines: true,
-        ..Default::default()
     };
     let (models, _) = tobj::load_obj_buf(&mut Cursor::new(filtered), &options, |_| {
         Err(tobj::LoadError::OpenFileFailed)
@@ -75,19 +91,33 @@ pub(super) fn read(bytes: &[u8], path: &Path, limits: &ReadLimits) -> Result<Raw
         other => format_err(path, format!("OBJ: {other}")),
     })?;
 
+    // tobj renumbers the vertices of each object; map them back to the file's vertices by
+    // position, so that the report counts unused and duplicate vertices of the file.
+    let mut by_position: HashMap<[u32; 3], i64> = HashMap::with_capacity(v_lines);
+    for (i, p) in file_vertices.iter().enumerate() {
+        by_position.entry(p.map(f32::to_bits)).or_insert(i as i64);
+    }
     let mut raw = RawMesh {
+        vertices: file_vertices.iter().map(|p| p.map(f64::from)).collect(),
         other_elements_ignored: ignored,
-        vertices_in_file: Some(v_lines),
         ..Default::default()
     };
     for model in &models {
         let mesh = &model.mesh;
-        let base = raw.vertices.len() as i64;
-        raw.vertices.extend(
-            mesh.positions
-                .chunks_exact(3)
-                .map(|p| [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])]),
-        );
+        let file_index: Vec<i64> = mesh
+            .positions
+            .chunks_exact(3)
+            .map(|p| {
+                let key = [p[0].to_bits(), p[1].to_bits(), p[2].to_bits()];
+                *by_position.entry(key).or_insert_with(|| {
+                    // Not a position of the file as parsed above (cannot happen with tobj's
+                    // parsing); kept as an extra vertex.
+                    raw.vertices
+                        .push([f64::from(p[0]), f64::from(p[1]), f64::from(p[2])]);
+                    raw.vertices.len() as i64 - 1
+                })
+            })
+            .collect();
         let mut at = 0usize;
         let mut push = |arity: usize| {
             let corners: Vec<i64> = mesh
@@ -95,7 +125,7 @@ pub(super) fn read(bytes: &[u8], path: &Path, limits: &ReadLimits) -> Result<Raw
                 .get(at..at + arity)
                 .unwrap_or(&[])
                 .iter()
-                .map(|&i| base + i64::from(i))
+                .map(|&i| file_index.get(i as usize).copied().unwrap_or(-1))
                 .collect();
             at += arity;
             raw.faces.push(&corners);

@@ -404,7 +404,6 @@ pub(super) fn read_model(
                 vertices: decoded.vertices.iter().map(|v| v.p).collect(),
                 faces,
                 other_elements_ignored: decoded.other_elements,
-                vertices_in_file: None,
             },
             encoding: decoded.encoding,
         }),
