@@ -7,14 +7,20 @@ use binpick_cloud::{SurfaceSampling, TriangleMesh};
 
 pub fn check_err(e: &IoError, name: &str) {
     let msg = e.to_string();
-    assert!(msg.starts_with(&format!("{name}: ")), "error does not name the file: {msg}");
+    assert!(
+        msg.starts_with(&format!("{name}: ")),
+        "error does not name the file: {msg}"
+    );
     assert!(!msg.contains('\n'), "multi-line error: {msg}");
     assert_eq!(e.path().to_str(), Some(name));
 }
 
 pub fn check_cloud(c: &LoadedCloud) {
     assert!(!c.cloud.is_empty(), "Ok with no points");
-    assert!(c.cloud.first_non_finite().is_none(), "non-finite point kept");
+    assert!(
+        c.cloud.first_non_finite().is_none(),
+        "non-finite point kept"
+    );
     if let Some(colors) = &c.colors {
         assert_eq!(colors.len(), c.cloud.len());
     }
@@ -59,7 +65,10 @@ pub fn model(data: &[u8], name: &str) {
         Ok(Model::Mesh(m)) => {
             check_mesh(&m.mesh);
             let r = &m.report;
-            assert_eq!(r.vertices_in_file, r.unused_vertices + r.duplicate_vertices_merged + m.mesh.vertices.len());
+            assert_eq!(
+                r.vertices_in_file,
+                r.unused_vertices + r.duplicate_vertices_merged + m.mesh.vertices.len()
+            );
         }
         Err(e) => check_err(&e, name),
     }
