@@ -1,4 +1,7 @@
-//! PCD and PLY reading and writing, in pure Rust.
+//! PCD and PLY clouds (read and write) and STL, OBJ and PLY meshes (read), in pure Rust.
+//!
+//! Clouds are read with [`read_cloud`] and its variants; part models, which may be a cloud or
+//! a CAD mesh, with [`read_model`] (see [`Model`]).
 //!
 //! # Supported formats
 //!
@@ -10,6 +13,9 @@
 //! | PLY `ascii 1.0` | yes | yes ([`PlyEncoding::Ascii`]) |
 //! | PLY `binary_little_endian 1.0` | yes | yes ([`PlyEncoding::BinaryLittleEndian`]) |
 //! | PLY `binary_big_endian 1.0` | yes | yes ([`PlyEncoding::BinaryBigEndian`]) |
+//! | PLY with a `face` element | as a mesh ([`read_model`]) or its vertices as a cloud | no |
+//! | STL ASCII and binary | as a mesh ([`read_model`], through `stl_io`) | no |
+//! | OBJ (`v`, `f`) | as a mesh ([`read_model`], through `tobj`) | no |
 //!
 //! **Reading PCD** accepts any field layout that contains `x`, `y` and `z` (each with
 //! `COUNT 1`, of any numeric type; `F4` and `F8` are the usual ones): extra fields such as
@@ -17,14 +23,26 @@
 //! PCL padding fields named `_`, and every valid `TYPE`/`SIZE` pair (`F` 4/8, `U` and `I`
 //! 1/2/4/8). Organised clouds (`HEIGHT > 1`) are read row by row into an unorganised cloud;
 //! [`LoadReport::width`] and [`LoadReport::height`] keep the original shape. As in PCL,
-//! `WIDTH x HEIGHT` must equal `POINTS`, blank lines in ASCII data are skipped, `COUNT 0`
-//! means 1, and bytes after the data (PCL pads its files with zeros) are ignored. Colours
+//! `WIDTH x HEIGHT` must equal `POINTS`, blank lines in ASCII data are skipped and `COUNT 0`
+//! means 1. `POINTS` must also match the data: zero bytes after the data are PCL's padding
+//! and ignored, but more data than `POINTS` (more ASCII rows, more binary points, a longer
+//! compressed block) is an error stating both counts, never a silent prefix of the cloud.
+//! The `VIEWPOINT` line is parsed into [`LoadReport::viewpoint`]. Colours
 //! come from an `rgb` or `rgba` field of 4 bytes (`F4` bits or `U4`); in ASCII an integer
 //! token is the packed value and a decimal one a float whose bits are the packed value.
 //!
 //! **Reading PLY** takes the `vertex` element's `x`, `y`, `z` properties (any numeric scalar
 //! type) and, when present, `red`/`green`/`blue`; every other element (faces, edges, ...) is
-//! parsed for validation and then ignored.
+//! parsed for validation and then ignored by [`read_cloud`]. The vertex count must match
+//! the data (both counts are stated otherwise).
+//!
+//! **Reading meshes** ([`read_model`]): every format goes through one set of checks
+//! (indices in range, finite coordinates, polygons split into fans, zero-area triangles
+//! skipped and counted, vertices at one position merged, closed meshes wound outward); see
+//! [`MeshReport`] for what is counted.
+//!
+//! **Limits**: [`ReadLimits`] bounds the points and faces a file may hold (50 million each
+//! by default), checked from the header before the data is read.
 //!
 //! **Non-finite points**: a point with a NaN or infinite coordinate (or an `F8`/PLY `double`
 //! coordinate outside the `f32` range) is dropped and counted in
@@ -34,22 +52,24 @@
 //! **Units**: coordinates are stored and returned as they are in the file. binpick works in
 //! millimetres; converting a file in metres is the caller's job (see [`crate::Units`]).
 //!
-//! **Writing** always stores `x y z` as `float32`, with an optional per-point colour: in
+//! **Writing** (PCD, PLY clouds) always stores `x y z` as `float32`, with an optional per-point colour: in
 //! binary PCD an `rgb` field of type `F4` packed as PCL does (`0x00RRGGBB` reinterpreted as
 //! a float), in ASCII PCD an `rgb` field of type `U4` holding that integer (what PCL 1.13
 //! writes: it reads an ASCII `F4` token as a float value), in PLY `uchar red green blue`.
 //! ASCII output prints every coordinate with the shortest decimal that parses back to the
 //! same `f32`, so ASCII round trips are exact too. Written clouds are unorganised
 //! (`HEIGHT 1`). Non-finite coordinates are written as they are (`nan`, `inf`); readers drop
-//! them again. An empty cloud can be written, but reading that file back is an error.
+//! them again. An empty cloud can be written, but reading that file back is an error. PCD
+//! files get a `VIEWPOINT` line: PCL's default, or the one given to
+//! [`write_pcd_with_viewpoint`].
 //!
 //! # Robustness
 //!
 //! Readers never panic and never size a buffer from a header's counts alone: counts are
 //! checked against the bytes that follow (for `binary_compressed`, the LZF stream is walked
 //! without decoding to check the length it really unpacks to) before anything is allocated,
-//! so memory stays proportional to the data actually present. Every error names the file (the path, or the name passed to
-//! [`read_cloud_from_bytes`]) and says what is wrong, e.g.
+//! so memory stays proportional to the data actually present. Every error names the file
+//! (the path, or the name passed to [`read_cloud_from_bytes`]) and says what is wrong, e.g.
 //! `scene.pcd: truncated: header says 5000 points of 16 bytes (80000 bytes) but only 1200 bytes follow`.
 //!
 //! The `pcd-rs` crate decodes binary and LZF-compressed PCD data and writes binary and
@@ -57,15 +77,122 @@
 //! some lying headers); `ply-rs-bw` parses PLY headers and binary PLY payloads and writes
 //! PLY. ASCII PCD and ASCII PLY payloads are parsed here (pcd-rs rejects blank lines and
 //! reads an integer `rgb` token as a float value; ply-rs-bw rejects `nan`, `inf` and numbers
-//! such as `.5`).
+//! such as `.5`). `stl_io` decodes STL triangles once this module has decided ASCII or
+//! binary and checked a binary file's triangle count against its size; `tobj` parses OBJ.
+//! Every reader is fuzzed (`fuzz/`) and mutation-tested (`tests/io_mutations.rs`).
 
+mod model;
+mod obj;
 mod pcd;
 mod ply;
+mod stl;
 
 use std::fmt;
+use std::io::Read as _;
 use std::path::{Path, PathBuf};
 
 use crate::{Point, PointCloud};
+
+pub use model::{
+    DEGENERATE_AREA_FRACTION, LoadedMesh, MeshFormat, MeshReport, Model, read_model,
+    read_model_from_bytes, read_model_with,
+};
+
+/// Default of [`ReadLimits::max_points`]: ten times a 5-megapixel scan.
+pub const DEFAULT_MAX_POINTS: usize = 50_000_000;
+/// Default of [`ReadLimits::max_faces`].
+pub const DEFAULT_MAX_FACES: usize = 50_000_000;
+
+/// Bounds on what a reader accepts. They are checked against the counts a header announces
+/// (PCD `POINTS`, PLY element counts, the binary STL triangle count) before the data is read,
+/// so a file too large for the machine is refused with a clear error instead of exhausting
+/// memory; formats without counts in a header (ASCII STL, OBJ) are checked once parsed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ReadLimits {
+    /// Most points a cloud file may hold (PCD `POINTS`, PLY `vertex` count) and most vertices
+    /// of a mesh file. Default [`DEFAULT_MAX_POINTS`] (50 million); range 1 and up.
+    pub max_points: usize,
+    /// Most faces a mesh file may hold (STL facets, OBJ `f` lines, PLY `face` elements).
+    /// Default [`DEFAULT_MAX_FACES`] (50 million); range 1 and up.
+    pub max_faces: usize,
+}
+
+impl Default for ReadLimits {
+    fn default() -> Self {
+        Self {
+            max_points: DEFAULT_MAX_POINTS,
+            max_faces: DEFAULT_MAX_FACES,
+        }
+    }
+}
+
+impl ReadLimits {
+    /// Fails with [`IoError::TooLarge`] when `count` points exceed [`ReadLimits::max_points`].
+    pub(crate) fn check_points(&self, path: &Path, count: u64) -> Result<(), IoError> {
+        check_limit(path, count, self.max_points, "points", "max_points")
+    }
+
+    /// Fails with [`IoError::TooLarge`] when `count` faces exceed [`ReadLimits::max_faces`].
+    pub(crate) fn check_faces(&self, path: &Path, count: u64) -> Result<(), IoError> {
+        check_limit(path, count, self.max_faces, "faces", "max_faces")
+    }
+}
+
+fn check_limit(
+    path: &Path,
+    count: u64,
+    limit: usize,
+    what: &'static str,
+    setting: &'static str,
+) -> Result<(), IoError> {
+    if count > limit as u64 {
+        return Err(IoError::TooLarge {
+            path: path.to_owned(),
+            what,
+            count,
+            limit,
+            setting,
+        });
+    }
+    Ok(())
+}
+
+/// A PCD file's `VIEWPOINT`: where the sensor was and how it was turned when the cloud was
+/// taken, in the file's coordinates and units (PCL's `sensor_origin_` and
+/// `sensor_orientation_`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Viewpoint {
+    /// Sensor position `[tx, ty, tz]`, in the file's units.
+    pub position: [f64; 3],
+    /// Sensor orientation as a unit quaternion `[w, x, y, z]` (normalised on read).
+    pub orientation_wxyz: [f64; 4],
+}
+
+impl Default for Viewpoint {
+    /// PCL's default, `VIEWPOINT 0 0 0 1 0 0 0`: at the origin, not rotated.
+    fn default() -> Self {
+        Self {
+            position: [0.0; 3],
+            orientation_wxyz: [1.0, 0.0, 0.0, 0.0],
+        }
+    }
+}
+
+impl Viewpoint {
+    /// Whether this is PCL's default `0 0 0 1 0 0 0`, which PCL writes when it knows nothing
+    /// about the sensor (so it says nothing about where the scanner really was).
+    pub fn is_pcl_default(&self) -> bool {
+        *self == Viewpoint::default()
+    }
+
+    /// The viewpoint with its position multiplied by `factor` (e.g. 1000 for metres to mm).
+    pub fn scaled(&self, factor: f64) -> Viewpoint {
+        Viewpoint {
+            position: self.position.map(|c| c * factor),
+            orientation_wxyz: self.orientation_wxyz,
+        }
+    }
+}
 
 /// Error reading or writing a cloud file. Every variant names the file, and its `Display`
 /// starts with the path.
@@ -77,9 +204,14 @@ pub enum IoError {
         path: PathBuf,
         source: std::io::Error,
     },
-    /// The file name has no extension or one that is neither `.pcd` nor `.ply`.
-    #[error("{}: unsupported file type ({found}): supported are .pcd and .ply", .path.display())]
-    UnsupportedExtension { path: PathBuf, found: String },
+    /// The file name has no extension or one the reader does not support (clouds: `.pcd`,
+    /// `.ply`; models: also `.stl`, `.obj`).
+    #[error("{}: unsupported file type ({found}): supported are {supported}", .path.display())]
+    UnsupportedExtension {
+        path: PathBuf,
+        found: String,
+        supported: &'static str,
+    },
     /// The content is of another format than the extension says (e.g. a PLY named `.pcd`).
     #[error("{}: {message}", .path.display())]
     WrongFormat { path: PathBuf, message: String },
@@ -99,6 +231,25 @@ pub enum IoError {
     /// A write was asked with inconsistent arguments (e.g. fewer colours than points).
     #[error("{}: cannot write: {message}", .path.display())]
     InvalidArgument { path: PathBuf, message: String },
+    /// The file announces (or holds) more points or faces than [`ReadLimits`] allows.
+    #[error(
+        "{}: {count} {what}, more than the limit of {limit} {what} (ReadLimits::{setting}); \
+         raise the limit to read this file",
+        .path.display()
+    )]
+    TooLarge {
+        path: PathBuf,
+        /// `"points"` or `"faces"`.
+        what: &'static str,
+        count: u64,
+        limit: usize,
+        /// The [`ReadLimits`] field that sets the limit.
+        setting: &'static str,
+    },
+    /// A mesh file whose faces are unusable: none at all, all of zero area, an index out of
+    /// range, a non-finite coordinate.
+    #[error("{}: {message}", .path.display())]
+    Mesh { path: PathBuf, message: String },
 }
 
 fn no_points_message(points_in_file: usize, dropped: usize) -> String {
@@ -119,13 +270,22 @@ impl IoError {
             | IoError::Format { path, .. }
             | IoError::Truncated { path, .. }
             | IoError::NoFinitePoints { path, .. }
-            | IoError::InvalidArgument { path, .. } => path,
+            | IoError::InvalidArgument { path, .. }
+            | IoError::TooLarge { path, .. }
+            | IoError::Mesh { path, .. } => path,
         }
     }
 }
 
 pub(crate) fn format_err(path: &Path, message: impl Into<String>) -> IoError {
     IoError::Format {
+        path: path.to_owned(),
+        message: message.into(),
+    }
+}
+
+pub(crate) fn mesh_err(path: &Path, message: impl Into<String>) -> IoError {
+    IoError::Mesh {
         path: path.to_owned(),
         message: message.into(),
     }
@@ -220,7 +380,7 @@ impl From<PlyEncoding> for Encoding {
 }
 
 /// What was found while loading a cloud.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct LoadReport {
     /// Points stored in the file (`POINTS`, i.e. width x height, for PCD; the vertex count
     /// for PLY), before non-finite points were dropped.
@@ -238,12 +398,20 @@ pub struct LoadReport {
     /// Field names in file order: PCD `FIELDS` (padding `_` included), or the PLY `vertex`
     /// element's property names.
     pub fields: Vec<String>,
+    /// The PCD `VIEWPOINT` line, when the header has one (PLY has none). In the file's units.
+    pub viewpoint: Option<Viewpoint>,
 }
 
 impl LoadReport {
     /// Whether the file stored an organised (image-like) cloud.
     pub fn is_organized(&self) -> bool {
         self.height > 1
+    }
+
+    /// The sensor's viewpoint when the file states a real one: `None` when there is no
+    /// `VIEWPOINT` line or it is PCL's default `0 0 0 1 0 0 0` (written when nothing is known).
+    pub fn sensor_viewpoint(&self) -> Option<&Viewpoint> {
+        self.viewpoint.as_ref().filter(|v| !v.is_pcl_default())
     }
 }
 
@@ -333,33 +501,41 @@ pub fn unpack_rgb(v: u32) -> [u8; 3] {
     [(v >> 16) as u8, (v >> 8) as u8, v as u8]
 }
 
+/// The lower-case extension of `path`, if any.
+pub(crate) fn extension(path: &Path) -> Option<String> {
+    path.extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+}
+
+pub(crate) fn unsupported_extension(path: &Path, supported: &'static str) -> IoError {
+    IoError::UnsupportedExtension {
+        path: path.to_owned(),
+        found: extension(path)
+            .map_or_else(|| "no extension".to_owned(), |e| format!("extension .{e}")),
+        supported,
+    }
+}
+
 fn format_from_extension(path: &Path) -> Result<CloudFormat, IoError> {
-    let ext = path
-        .extension()
-        .map(|e| e.to_string_lossy().to_ascii_lowercase());
-    match ext.as_deref() {
+    match extension(path).as_deref() {
         Some("pcd") => Ok(CloudFormat::Pcd),
         Some("ply") => Ok(CloudFormat::Ply),
-        Some(other) => Err(IoError::UnsupportedExtension {
-            path: path.to_owned(),
-            found: format!("extension .{other}"),
-        }),
-        None => Err(IoError::UnsupportedExtension {
-            path: path.to_owned(),
-            found: "no extension".to_owned(),
-        }),
+        _ => Err(unsupported_extension(
+            path,
+            ".pcd and .ply (mesh models .stl and .obj are read by read_model)",
+        )),
     }
 }
 
 /// What the first bytes look like.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Sniffed {
+pub(crate) enum Sniffed {
     Ply,
     Pcd,
     Unknown,
 }
 
-fn sniff(bytes: &[u8]) -> Sniffed {
+pub(crate) fn sniff(bytes: &[u8]) -> Sniffed {
     if bytes.starts_with(b"ply\n") || bytes.starts_with(b"ply\r") || bytes == b"ply" {
         return Sniffed::Ply;
     }
@@ -382,7 +558,8 @@ fn sniff(bytes: &[u8]) -> Sniffed {
     }
 }
 
-/// Reads a `.pcd` or `.ply` file (chosen by extension), dropping non-finite points.
+/// Reads a `.pcd` or `.ply` file (chosen by extension), dropping non-finite points, with the
+/// default [`ReadLimits`].
 pub fn read_cloud(path: &Path) -> Result<(PointCloud, LoadReport), IoError> {
     read_cloud_with_colors(path).map(|l| (l.cloud, l.report))
 }
@@ -398,22 +575,72 @@ pub fn read_cloud_from_bytes(
 
 /// Like [`read_cloud`], also returning the per-point colours when the file has them.
 pub fn read_cloud_with_colors(path: &Path) -> Result<LoadedCloud, IoError> {
+    read_cloud_with(path, &ReadLimits::default())
+}
+
+/// Like [`read_cloud_with_colors`] with explicit [`ReadLimits`]. The header is read and
+/// checked against the limits before the rest of the file is loaded.
+pub fn read_cloud_with(path: &Path, limits: &ReadLimits) -> Result<LoadedCloud, IoError> {
     // Check the extension before touching the file, so a wrong name fails the same way
     // whether the file exists or not.
-    format_from_extension(path)?;
-    let bytes = std::fs::read(path).map_err(|source| IoError::Io {
-        path: path.to_owned(),
-        source,
-    })?;
-    read_bytes(&bytes, path)
+    let format = format_from_extension(path)?;
+    let bytes = read_file_checked(path, |prefix| precheck_cloud(prefix, path, format, limits))?;
+    read_bytes(&bytes, path, limits)
 }
 
 /// Like [`read_cloud_from_bytes`], also returning the per-point colours.
 pub fn read_cloud_with_colors_from_bytes(bytes: &[u8], name: &str) -> Result<LoadedCloud, IoError> {
-    read_bytes(bytes, Path::new(name))
+    read_cloud_with_from_bytes(bytes, name, &ReadLimits::default())
 }
 
-fn read_bytes(bytes: &[u8], path: &Path) -> Result<LoadedCloud, IoError> {
+/// Like [`read_cloud_with_colors_from_bytes`] with explicit [`ReadLimits`].
+pub fn read_cloud_with_from_bytes(
+    bytes: &[u8],
+    name: &str,
+    limits: &ReadLimits,
+) -> Result<LoadedCloud, IoError> {
+    read_bytes(bytes, Path::new(name), limits)
+}
+
+/// How much of a file is read first to check its header against the limits.
+const HEADER_PREFIX_BYTES: u64 = 64 << 10;
+
+/// Reads a whole file, after running `precheck` on its first bytes (its header), so that a
+/// header announcing more than the limits is refused before the file is loaded.
+pub(crate) fn read_file_checked(
+    path: &Path,
+    precheck: impl FnOnce(&[u8]) -> Result<(), IoError>,
+) -> Result<Vec<u8>, IoError> {
+    let io = |source| IoError::Io {
+        path: path.to_owned(),
+        source,
+    };
+    let mut file = std::fs::File::open(path).map_err(io)?;
+    let mut bytes = Vec::new();
+    file.by_ref()
+        .take(HEADER_PREFIX_BYTES)
+        .read_to_end(&mut bytes)
+        .map_err(io)?;
+    precheck(&bytes)?;
+    file.read_to_end(&mut bytes).map_err(io)?;
+    Ok(bytes)
+}
+
+/// Checks a cloud file's header (possibly followed by only part of the data) against the
+/// limits. A header that cannot be parsed from the prefix is left to the full read.
+fn precheck_cloud(
+    prefix: &[u8],
+    path: &Path,
+    format: CloudFormat,
+    limits: &ReadLimits,
+) -> Result<(), IoError> {
+    match format {
+        CloudFormat::Pcd => pcd::precheck(prefix, path, limits),
+        CloudFormat::Ply => ply::precheck(prefix, path, limits, false),
+    }
+}
+
+fn read_bytes(bytes: &[u8], path: &Path, limits: &ReadLimits) -> Result<LoadedCloud, IoError> {
     let format = format_from_extension(path)?;
     if bytes.is_empty() {
         return Err(format_err(path, "file is empty"));
@@ -434,8 +661,8 @@ fn read_bytes(bytes: &[u8], path: &Path) -> Result<LoadedCloud, IoError> {
             path,
             "not a PLY file: it does not start with the line \"ply\"",
         )),
-        (CloudFormat::Pcd, _) => pcd::read(bytes, path),
-        (CloudFormat::Ply, _) => ply::read(bytes, path),
+        (CloudFormat::Pcd, _) => pcd::read(bytes, path, limits),
+        (CloudFormat::Ply, _) => ply::read(bytes, path, limits),
     }
 }
 
@@ -473,9 +700,21 @@ pub fn write_pcd_with(
     encoding: PcdEncoding,
     colors: Option<&[[u8; 3]]>,
 ) -> Result<(), IoError> {
+    write_pcd_with_viewpoint(path, cloud, encoding, colors, &Viewpoint::default())
+}
+
+/// Like [`write_pcd_with`], with the sensor's `viewpoint` (in the cloud's units) in the
+/// header's `VIEWPOINT` line.
+pub fn write_pcd_with_viewpoint(
+    path: &Path,
+    cloud: &PointCloud,
+    encoding: PcdEncoding,
+    colors: Option<&[[u8; 3]]>,
+    viewpoint: &Viewpoint,
+) -> Result<(), IoError> {
     check_colors(path, cloud, colors)?;
-    let bytes =
-        pcd::encode(cloud, encoding, colors).map_err(|message| format_err(path, message))?;
+    let bytes = pcd::encode(cloud, encoding, colors, viewpoint)
+        .map_err(|message| format_err(path, message))?;
     write_file(path, &bytes)
 }
 

@@ -1,12 +1,19 @@
 //! Point clouds for binpick: the [`PointCloud`] type (millimetres unless stated otherwise),
-//! unit handling, PCD/PLY reading and writing ([`io`]) and the labelled dataset format
+//! unit handling, PCD/PLY reading and writing and STL/OBJ/PLY mesh reading ([`io`]),
+//! triangle meshes and their surface sampling ([`mesh`]) and the labelled dataset format
 //! ([`dataset`]).
 //!
 //! Everything here is pure Rust and independent of PCL, so the synthetic-data generator and
 //! the I/O tests build without the C++ toolchain.
 
 pub mod dataset;
+mod degeneracy;
 pub mod io;
+pub mod mesh;
+pub mod rng;
+
+pub use degeneracy::{COLLINEAR_TOLERANCE, Degeneracy};
+pub use mesh::{SampleError, SurfaceSamples, SurfaceSampling, TriangleMesh};
 
 use nalgebra::{Isometry3, Point3};
 use serde::{Deserialize, Serialize};

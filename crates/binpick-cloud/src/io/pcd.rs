@@ -20,8 +20,8 @@ use pcd_rs::{
 };
 
 use super::{
-    CloudFormat, Collector, IoError, LoadReport, LoadedCloud, PcdEncoding, fmt_f32, format_err,
-    numbered_lines, one_line, pack_rgb, show, truncated, unpack_rgb,
+    CloudFormat, Collector, IoError, LoadReport, LoadedCloud, PcdEncoding, ReadLimits, Viewpoint,
+    fmt_f32, format_err, numbered_lines, one_line, pack_rgb, show, truncated, unpack_rgb,
 };
 use crate::PointCloud;
 
@@ -69,6 +69,8 @@ struct Header {
     xyz: [usize; 3],
     /// Index into `fields` of the colour field (`rgb` or `rgba`, 4 bytes, COUNT 1).
     color: Option<usize>,
+    /// The `VIEWPOINT` line, when present.
+    viewpoint: Option<Viewpoint>,
 }
 
 /// One header line: its number and its whitespace-separated tokens (keyword first).
@@ -414,6 +416,10 @@ fn parse_header(bytes: &[u8], path: &Path) -> Result<Header, IoError> {
             ),
         ));
     }
+    let viewpoint = entries
+        .get("VIEWPOINT")
+        .map(|e| parse_viewpoint(e, path))
+        .transpose()?;
 
     Ok(Header {
         fields,
@@ -427,11 +433,61 @@ fn parse_header(bytes: &[u8], path: &Path) -> Result<Header, IoError> {
         lines: header_lines,
         xyz,
         color,
+        viewpoint,
     })
 }
 
-pub(super) fn read(bytes: &[u8], path: &Path) -> Result<LoadedCloud, IoError> {
+/// `VIEWPOINT tx ty tz qw qx qy qz`; the quaternion is normalised (PCL stores it as given).
+fn parse_viewpoint(e: &Entry, path: &Path) -> Result<Viewpoint, IoError> {
+    let bad = |what: String| {
+        format_err(
+            path,
+            format!(
+                "header line {}: VIEWPOINT {what} (expected 7 numbers: tx ty tz qw qx qy qz)",
+                e.line
+            ),
+        )
+    };
+    let vals = e.values();
+    if vals.len() != 7 {
+        return Err(bad(format!("has {} values", vals.len())));
+    }
+    let mut v = [0.0f64; 7];
+    for (slot, tok) in v.iter_mut().zip(vals) {
+        *slot = tok
+            .parse::<f64>()
+            .ok()
+            .filter(|x| x.is_finite())
+            .ok_or_else(|| {
+                bad(format!(
+                    "value {} is not a finite number",
+                    show(tok.as_bytes())
+                ))
+            })?;
+    }
+    let [tx, ty, tz, qw, qx, qy, qz] = v;
+    let norm = (qw * qw + qx * qx + qy * qy + qz * qz).sqrt();
+    if !(norm > 1e-12 && norm.is_finite()) {
+        return Err(bad("has a zero orientation quaternion".to_owned()));
+    }
+    Ok(Viewpoint {
+        position: [tx, ty, tz],
+        orientation_wxyz: [qw / norm, qx / norm, qy / norm, qz / norm],
+    })
+}
+
+/// Checks the header at the start of a file (read before the rest) against `limits`. A header
+/// that does not parse from this prefix is left for the full read to report.
+pub(super) fn precheck(prefix: &[u8], path: &Path, limits: &ReadLimits) -> Result<(), IoError> {
+    match parse_header(prefix, path) {
+        Ok(h) => limits.check_points(path, h.points),
+        Err(_) => Ok(()),
+    }
+}
+
+pub(super) fn read(bytes: &[u8], path: &Path, limits: &ReadLimits) -> Result<LoadedCloud, IoError> {
     let h = parse_header(bytes, path)?;
+    limits.check_points(path, h.points)?;
     let too_many = || format_err(path, format!("POINTS {} is too large", h.points));
     let points = usize::try_from(h.points).map_err(|_| too_many())?;
     let width = usize::try_from(h.width).map_err(|_| too_many())?;
@@ -459,10 +515,24 @@ pub(super) fn read(bytes: &[u8], path: &Path) -> Result<LoadedCloud, IoError> {
                     ),
                 ));
             }
+            let after = data.get(need as usize..).unwrap_or(&[]);
+            check_after_binary(&h, after, path)?;
             read_records(&h, data, path)?
         }
         PcdEncoding::BinaryCompressed => {
             let block = check_compressed(&h, data, path)?;
+            let after = data.get(block.len()..).unwrap_or(&[]);
+            if !is_zero_padding(after) {
+                return Err(format_err(
+                    path,
+                    format!(
+                        "{} bytes of data follow the compressed block of POINTS {} points (only \
+                         zero padding may follow it)",
+                        after.len(),
+                        h.points
+                    ),
+                ));
+            }
             read_records(&h, block, path)?
         }
     };
@@ -474,8 +544,48 @@ pub(super) fn read(bytes: &[u8], path: &Path) -> Result<LoadedCloud, IoError> {
         width,
         height,
         fields: h.fields.iter().map(|f| f.name.clone()).collect(),
+        viewpoint: h.viewpoint,
     };
     collector.finish(path, report)
+}
+
+/// PCL pads files with zero bytes after the data; anything else there means the header's
+/// counts do not describe the data.
+fn is_zero_padding(bytes: &[u8]) -> bool {
+    bytes.iter().all(|&b| b == 0)
+}
+
+/// Binary data longer than `POINTS` x point size: zero padding is fine, more points are an
+/// error that states both counts (reading only the first `POINTS` would lose data silently).
+fn check_after_binary(h: &Header, after: &[u8], path: &Path) -> Result<(), IoError> {
+    if is_zero_padding(after) {
+        return Ok(());
+    }
+    let ps = h.point_size.max(1);
+    let shape = if h.height > 1 {
+        format!(" (WIDTH {} x HEIGHT {})", h.width, h.height)
+    } else {
+        String::new()
+    };
+    let message = if after.len() % ps == 0 {
+        format!(
+            "header says POINTS {}{shape} but the data holds {} points of {} bytes; the header's \
+             counts must match the data",
+            h.points,
+            h.points.saturating_add((after.len() / ps) as u64),
+            h.point_size
+        )
+    } else {
+        format!(
+            "header says POINTS {}{shape} ({} bytes of {}-byte points) but {} more bytes of data \
+             follow them (not zero padding, and not a whole number of points)",
+            h.points,
+            h.points.saturating_mul(h.point_size as u64),
+            h.point_size,
+            after.len()
+        )
+    };
+    Err(format_err(path, message))
 }
 
 /// Bytes the binary data of all points take.
@@ -513,11 +623,17 @@ fn check_compressed<'a>(h: &Header, data: &'a [u8], path: &Path) -> Result<&'a [
     }
     let need = binary_size(h, path)?;
     if u64::from(us) != need {
+        let ps = h.point_size.max(1) as u64;
+        let holds = if u64::from(us) % ps == 0 {
+            format!(", i.e. {} points", u64::from(us) / ps)
+        } else {
+            ", not a whole number of points".to_owned()
+        };
         return Err(format_err(
             path,
             format!(
-                "compressed block unpacks to {us} bytes but the header's {} points of {} bytes \
-                 need {need} bytes",
+                "header says POINTS {} ({need} bytes of {}-byte points) but the compressed block \
+                 unpacks to {us} bytes{holds}",
                 h.points, h.point_size
             ),
         ));
@@ -781,16 +897,19 @@ fn read_ascii(h: &Header, data: &[u8], path: &Path) -> Result<Collector, IoError
     let capacity = (h.points as usize).min(data.len() / per_point.max(1).saturating_mul(2) + 1);
     let mut collector = Collector::new(capacity, h.color.is_some());
     let mut read = 0u64;
-    for (line_no, raw) in numbered_lines(data, h.lines + 1) {
+    let mut lines = numbered_lines(data, h.lines + 1);
+    while let Some((line_no, raw)) = lines.next() {
         if is_blank(raw) {
             continue;
         }
         if read == h.points {
+            let rows = read + 1 + lines.filter(|(_, l)| !is_blank(l)).count() as u64;
             return Err(format_err(
                 path,
                 format!(
-                    "line {line_no}: more data rows than the {} points the header announces",
-                    h.points
+                    "line {line_no}: more data rows than the {} points the header announces: \
+                     header says POINTS {} but {rows} data rows follow it",
+                    h.points, h.points
                 ),
             ));
         }
@@ -867,7 +986,7 @@ fn read_ascii(h: &Header, data: &[u8], path: &Path) -> Result<Collector, IoError
 }
 
 /// Header of an ASCII PCD: `x y z` float32, plus `rgb` as `U 4` when coloured.
-fn pcd_ascii_header(n: usize, with_colors: bool) -> String {
+fn pcd_ascii_header(n: usize, with_colors: bool, viewpoint: &Viewpoint) -> String {
     // In ASCII the colour is declared U4 and written as its integer, as PCL 1.13 itself
     // writes it: PCL 1.13 reads an F4 rgb token as a float value, so an F4 declaration
     // would make it mis-read the integer.
@@ -876,10 +995,12 @@ fn pcd_ascii_header(n: usize, with_colors: bool) -> String {
     } else {
         ("x y z", "4 4 4", "F F F", "1 1 1")
     };
+    let [px, py, pz] = viewpoint.position;
+    let [qw, qx, qy, qz] = viewpoint.orientation_wxyz;
     format!(
         "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS {fields}\n\
          SIZE {size}\nTYPE {ty}\nCOUNT {count}\nWIDTH {n}\nHEIGHT 1\n\
-         VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA ascii\n"
+         VIEWPOINT {px} {py} {pz} {qw} {qx} {qy} {qz}\nPOINTS {n}\nDATA ascii\n"
     )
 }
 
@@ -888,18 +1009,19 @@ pub(super) fn encode(
     cloud: &PointCloud,
     encoding: PcdEncoding,
     colors: Option<&[[u8; 3]]>,
+    viewpoint: &Viewpoint,
 ) -> Result<Vec<u8>, String> {
     match encoding {
-        PcdEncoding::Ascii => Ok(encode_ascii(cloud, colors)),
-        PcdEncoding::Binary => encode_with_pcd_rs(cloud, DataKind::Binary, colors),
+        PcdEncoding::Ascii => Ok(encode_ascii(cloud, colors, viewpoint)),
+        PcdEncoding::Binary => encode_with_pcd_rs(cloud, DataKind::Binary, colors, viewpoint),
         PcdEncoding::BinaryCompressed => {
-            encode_with_pcd_rs(cloud, DataKind::BinaryCompressed, colors)
+            encode_with_pcd_rs(cloud, DataKind::BinaryCompressed, colors, viewpoint)
         }
     }
 }
 
-fn encode_ascii(cloud: &PointCloud, colors: Option<&[[u8; 3]]>) -> Vec<u8> {
-    let mut out = pcd_ascii_header(cloud.len(), colors.is_some());
+fn encode_ascii(cloud: &PointCloud, colors: Option<&[[u8; 3]]>, viewpoint: &Viewpoint) -> Vec<u8> {
+    let mut out = pcd_ascii_header(cloud.len(), colors.is_some(), viewpoint);
     for (i, p) in cloud.points.iter().enumerate() {
         let _ = write!(out, "{} {} {}", fmt_f32(p[0]), fmt_f32(p[1]), fmt_f32(p[2]));
         if let Some(c) = colors.and_then(|c| c.get(i)) {
@@ -914,7 +1036,10 @@ fn encode_with_pcd_rs(
     cloud: &PointCloud,
     kind: DataKind,
     colors: Option<&[[u8; 3]]>,
+    viewpoint: &Viewpoint,
 ) -> Result<Vec<u8>, String> {
+    let [tx, ty, tz] = viewpoint.position;
+    let [qw, qx, qy, qz] = viewpoint.orientation_wxyz;
     let mut fields = vec![
         ("x", ValueKind::F32, 1u64),
         ("y", ValueKind::F32, 1),
@@ -928,7 +1053,15 @@ fn encode_with_pcd_rs(
     let mut writer: DynWriter<_> = WriterInit {
         width: cloud.len() as u64,
         height: 1,
-        viewpoint: Default::default(),
+        viewpoint: pcd_rs::ViewPoint {
+            tx,
+            ty,
+            tz,
+            qw,
+            qx,
+            qy,
+            qz,
+        },
         data_kind: kind,
         schema: Some(schema),
         version: None,

@@ -14,9 +14,10 @@ use ply_rs_bw::ply::{
 };
 use ply_rs_bw::writer::Writer;
 
+use super::model::{FaceLists, RawMesh};
 use super::{
-    CloudFormat, Collector, Encoding, IoError, LoadReport, LoadedCloud, PlyEncoding, format_err,
-    numbered_lines, one_line, show, truncated,
+    CloudFormat, Collector, Encoding, IoError, LoadReport, LoadedCloud, PlyEncoding, ReadLimits,
+    format_err, numbered_lines, one_line, show, truncated,
 };
 use crate::PointCloud;
 
@@ -134,7 +135,87 @@ fn ply_message(e: &ParseError) -> String {
     one_line(s)
 }
 
-pub(super) fn read(bytes: &[u8], path: &Path) -> Result<LoadedCloud, IoError> {
+/// A face element's corner indices, read when a mesh is wanted.
+struct FaceRec {
+    corners: Option<Vec<i64>>,
+}
+
+impl FaceRec {
+    fn set<T: Copy + Into<i64>>(&mut self, name: &str, v: &[T]) -> PropertyAccessResult {
+        if FACE_LISTS.contains(&name) {
+            self.corners = Some(v.iter().map(|&i| i.into()).collect());
+            PropertyAccessResult::Set
+        } else {
+            PropertyAccessResult::Ignored
+        }
+    }
+}
+
+impl PropertyAccess for FaceRec {
+    fn new() -> Self {
+        FaceRec { corners: None }
+    }
+    fn set_list_char(&mut self, name: &str, v: Vec<i8>) -> PropertyAccessResult {
+        self.set(name, &v)
+    }
+    fn set_list_uchar(&mut self, name: &str, v: Vec<u8>) -> PropertyAccessResult {
+        self.set(name, &v)
+    }
+    fn set_list_short(&mut self, name: &str, v: Vec<i16>) -> PropertyAccessResult {
+        self.set(name, &v)
+    }
+    fn set_list_ushort(&mut self, name: &str, v: Vec<u16>) -> PropertyAccessResult {
+        self.set(name, &v)
+    }
+    fn set_list_int(&mut self, name: &str, v: Vec<i32>) -> PropertyAccessResult {
+        self.set(name, &v)
+    }
+    fn set_list_uint(&mut self, name: &str, v: Vec<u32>) -> PropertyAccessResult {
+        self.set(name, &v)
+    }
+}
+
+/// Names of a face's corner-index list (`vertex_indices` is the standard one).
+const FACE_LISTS: [&str; 2] = ["vertex_indices", "vertex_index"];
+
+/// The name of the `face` element's corner list, checked to be a list of integers.
+fn face_list_name<'h>(header: &'h Header, path: &Path) -> Result<Option<&'h str>, IoError> {
+    let Some(face) = header.elements.get("face") else {
+        return Ok(None);
+    };
+    let Some((name, def)) = face
+        .properties
+        .iter()
+        .find(|(n, _)| FACE_LISTS.contains(&n.as_str()))
+    else {
+        return Err(format_err(
+            path,
+            "the \"face\" element has no vertex_indices list, so the faces cannot be read",
+        ));
+    };
+    match &def.data_type {
+        PropertyType::List(_, t) if !is_float(t) => Ok(Some(name.as_str())),
+        _ => Err(format_err(
+            path,
+            format!("face property {name:?} must be a list of integers (vertex indices)"),
+        )),
+    }
+}
+
+/// What a PLY file holds, decoded.
+struct Decoded {
+    vertices: Vec<Vertex>,
+    /// Corner indices of the `face` element, when faces were asked for and there are any.
+    faces: Option<FaceLists>,
+    encoding: Encoding,
+    fields: Vec<String>,
+    has_colors: bool,
+    /// Entries of elements other than `vertex` and `face` (edges, ...), read and ignored.
+    other_elements: usize,
+}
+
+/// Parses the header; returns it with the byte offset where the data starts.
+fn parse_header(bytes: &[u8], path: &Path) -> Result<(Header, usize), IoError> {
     let mut reader = Reader::new(bytes);
     let header = Parser::<Vertex>::new()
         .read_header(&mut reader)
@@ -144,8 +225,43 @@ pub(super) fn read(bytes: &[u8], path: &Path) -> Result<LoadedCloud, IoError> {
                 format!("bad PLY header: {}", one_line(&e.to_string())),
             )
         })?;
-    let body: &[u8] = reader.get_ref();
-    let header_bytes = bytes.get(..bytes.len() - body.len()).unwrap_or(&[]);
+    let body_len = reader.get_ref().len();
+    Ok((header, bytes.len() - body_len))
+}
+
+fn face_count(header: &Header) -> usize {
+    header.elements.get("face").map_or(0, |f| f.count)
+}
+
+/// Checks the header at the start of a file (read before the rest) against `limits`; faces
+/// only when a mesh is read. A header that does not parse from this prefix is left for the
+/// full read to report.
+pub(super) fn precheck(
+    prefix: &[u8],
+    path: &Path,
+    limits: &ReadLimits,
+    faces: bool,
+) -> Result<(), IoError> {
+    let Ok((header, _)) = parse_header(prefix, path) else {
+        return Ok(());
+    };
+    let n = header.elements.get("vertex").map_or(0, |v| v.count);
+    limits.check_points(path, n as u64)?;
+    if faces {
+        limits.check_faces(path, face_count(&header) as u64)?;
+    }
+    Ok(())
+}
+
+fn decode(
+    bytes: &[u8],
+    path: &Path,
+    limits: &ReadLimits,
+    want_faces: bool,
+) -> Result<Decoded, IoError> {
+    let (header, data_start) = parse_header(bytes, path)?;
+    let header_bytes = bytes.get(..data_start).unwrap_or(&[]);
+    let body = bytes.get(data_start..).unwrap_or(&[]);
     check_header_names(header_bytes, &header, path)?;
 
     let element_names = || {
@@ -194,6 +310,12 @@ pub(super) fn read(bytes: &[u8], path: &Path) -> Result<LoadedCloud, IoError> {
             ));
         }
     }
+    limits.check_points(path, vertex.count as u64)?;
+    let want_faces = want_faces && face_count(&header) > 0;
+    if want_faces {
+        limits.check_faces(path, face_count(&header) as u64)?;
+        face_list_name(&header, path)?;
+    }
     let has_colors = COLOR_NAMES.iter().any(|names| {
         names.iter().all(|n| {
             matches!(
@@ -202,7 +324,40 @@ pub(super) fn read(bytes: &[u8], path: &Path) -> Result<LoadedCloud, IoError> {
             )
         })
     });
-    let n = vertex.count;
+    let other_elements = header
+        .elements
+        .iter()
+        .filter(|(name, _)| !matches!(name.as_str(), "vertex" | "face"))
+        .map(|(_, def)| def.count)
+        .sum();
+
+    let mut out = Decoded {
+        vertices: Vec::new(),
+        faces: want_faces.then(FaceLists::default),
+        encoding: Encoding::Ascii,
+        fields,
+        has_colors,
+        other_elements,
+    };
+    match header.encoding {
+        FileEncoding::Ascii => {
+            let first_line = header_bytes.iter().filter(|&&b| b == b'\n').count() + 1;
+            read_ascii(&header, body, first_line, path, &mut out)?;
+        }
+        FileEncoding::BinaryLittleEndian => {
+            out.encoding = Encoding::BinaryLittleEndian;
+            read_binary(&header, body, path, &mut out)?;
+        }
+        FileEncoding::BinaryBigEndian => {
+            out.encoding = Encoding::BinaryBigEndian;
+            read_binary(&header, body, path, &mut out)?;
+        }
+    }
+    Ok(out)
+}
+
+fn cloud_from(decoded: Decoded, path: &Path) -> Result<LoadedCloud, IoError> {
+    let n = decoded.vertices.len();
     if n == 0 {
         return Err(IoError::NoFinitePoints {
             path: path.to_owned(),
@@ -210,34 +365,50 @@ pub(super) fn read(bytes: &[u8], path: &Path) -> Result<LoadedCloud, IoError> {
             non_finite_dropped: 0,
         });
     }
-
-    let (encoding, collector) = match header.encoding {
-        FileEncoding::Ascii => {
-            let first_line = header_bytes.iter().filter(|&&b| b == b'\n').count() + 1;
-            (
-                Encoding::Ascii,
-                read_ascii(&header, body, first_line, path, has_colors)?,
-            )
-        }
-        FileEncoding::BinaryLittleEndian => (
-            Encoding::BinaryLittleEndian,
-            read_binary(&header, &mut reader, path, has_colors)?,
-        ),
-        FileEncoding::BinaryBigEndian => (
-            Encoding::BinaryBigEndian,
-            read_binary(&header, &mut reader, path, has_colors)?,
-        ),
-    };
+    let mut collector = Collector::new(n, decoded.has_colors);
+    for v in &decoded.vertices {
+        collector.push(v.p, v.c);
+    }
     let report = LoadReport {
         points_in_file: n,
         non_finite_dropped: 0,
         format: CloudFormat::Ply,
-        encoding,
+        encoding: decoded.encoding,
         width: n,
         height: 1,
-        fields,
+        fields: decoded.fields,
+        viewpoint: None,
     };
     collector.finish(path, report)
+}
+
+pub(super) fn read(bytes: &[u8], path: &Path, limits: &ReadLimits) -> Result<LoadedCloud, IoError> {
+    cloud_from(decode(bytes, path, limits, false)?, path)
+}
+
+/// A PLY read as a model: a mesh when it has faces, otherwise a cloud.
+pub(super) enum PlyModel {
+    Cloud(LoadedCloud),
+    Mesh { raw: RawMesh, encoding: Encoding },
+}
+
+pub(super) fn read_model(
+    bytes: &[u8],
+    path: &Path,
+    limits: &ReadLimits,
+) -> Result<PlyModel, IoError> {
+    let mut decoded = decode(bytes, path, limits, true)?;
+    match decoded.faces.take() {
+        Some(faces) => Ok(PlyModel::Mesh {
+            raw: RawMesh {
+                vertices: decoded.vertices.iter().map(|v| v.p).collect(),
+                faces,
+                other_elements_ignored: decoded.other_elements,
+            },
+            encoding: decoded.encoding,
+        }),
+        None => cloud_from(decoded, path).map(PlyModel::Cloud),
+    }
 }
 
 /// ply-rs-bw keeps elements and properties in maps, so a repeated name silently replaces the
@@ -263,15 +434,28 @@ fn check_header_names(header_bytes: &[u8], header: &Header, path: &Path) -> Resu
     Ok(())
 }
 
+/// "header says 39 vertices but the data holds 40" when only vertices are stored and the
+/// extra data is a whole number of them; empty otherwise.
+fn vertex_count_hint(header: &Header, extra_vertices: Option<u64>) -> String {
+    let n = header.elements.get("vertex").map_or(0, |v| v.count);
+    match extra_vertices {
+        Some(extra) if header.elements.len() == 1 && extra > 0 => format!(
+            ": header says {n} vertices but the data holds {}",
+            (n as u64).saturating_add(extra)
+        ),
+        _ => String::new(),
+    }
+}
+
 fn read_binary(
     header: &Header,
-    reader: &mut Reader<&[u8]>,
+    body: &[u8],
     path: &Path,
-    has_colors: bool,
-) -> Result<Collector, IoError> {
+    out: &mut Decoded,
+) -> Result<(), IoError> {
     // Smallest size the data can have (lists counted as empty): a lying count fails here,
     // before anything is read.
-    let available = reader.get_ref().len() as u64;
+    let available = body.len() as u64;
     let mut need = 0u64;
     let mut vertex_size = 0u64;
     for (name, def) in &header.elements {
@@ -310,8 +494,7 @@ fn read_binary(
         ));
     }
 
-    let n = header.elements.get("vertex").map_or(0, |v| v.count);
-    let mut collector = Collector::new(n, has_colors);
+    let mut reader = Reader::new(body);
     let map_err = |e: ParseError| {
         if e.kind() == std::io::ErrorKind::UnexpectedEof {
             truncated(path, ply_message(&e))
@@ -324,30 +507,37 @@ fn read_binary(
             continue;
         }
         if name == "vertex" {
-            let vertices = Parser::<Vertex>::new()
-                .read_payload_for_element(reader, def, header)
+            out.vertices = Parser::<Vertex>::new()
+                .read_payload_for_element(&mut reader, def, header)
                 .map_err(map_err)?;
-            for v in vertices {
-                collector.push(v.p, v.c);
+        } else if let (Some(faces), "face") = (out.faces.as_mut(), name.as_str()) {
+            let recs = Parser::<FaceRec>::new()
+                .read_payload_for_element(&mut reader, def, header)
+                .map_err(map_err)?;
+            for rec in recs {
+                faces.push(rec.corners.as_deref().unwrap_or(&[]));
             }
         } else {
             Parser::<Skip>::new()
-                .read_payload_for_element(reader, def, header)
+                .read_payload_for_element(&mut reader, def, header)
                 .map_err(map_err)?;
         }
     }
     let rest = reader.get_ref();
     if !is_blank(rest) {
+        let whole = (vertex_size > 0 && rest.len() as u64 % vertex_size == 0)
+            .then(|| rest.len() as u64 / vertex_size);
         return Err(format_err(
             path,
             format!(
                 "{} bytes of unexpected data after the last element (does the header's element \
-                 count match the data?)",
-                rest.len()
+                 count match the data?){}",
+                rest.len(),
+                vertex_count_hint(header, whole)
             ),
         ));
     }
-    Ok(collector)
+    Ok(())
 }
 
 fn read_ascii(
@@ -355,14 +545,16 @@ fn read_ascii(
     body: &[u8],
     first_line: usize,
     path: &Path,
-    has_colors: bool,
-) -> Result<Collector, IoError> {
+    out: &mut Decoded,
+) -> Result<(), IoError> {
     let n = header.elements.get("vertex").map_or(0, |v| v.count);
     // A vertex line has at least three values and two separators.
-    let mut collector = Collector::new(n.min(body.len() / 6 + 1), has_colors);
+    out.vertices = Vec::with_capacity(n.min(body.len() / 6 + 1));
     let mut lines = numbered_lines(body, first_line).filter(|(_, l)| !is_blank(l));
     for (name, def) in &header.elements {
         let is_vertex = name == "vertex";
+        let is_face = name == "face" && out.faces.is_some();
+        let mut corners: Vec<i64> = Vec::new();
         for i in 0..def.count {
             let Some((line_no, raw)) = lines.next() else {
                 return Err(truncated(
@@ -391,6 +583,7 @@ fn read_ascii(
                 )
             };
             let mut vertex = Vertex::new();
+            corners.clear();
             for (prop, pdef) in &def.properties {
                 let bad = |tok: &str| {
                     format_err(
@@ -427,9 +620,23 @@ fn read_ascii(
                                 ),
                             )
                         })?;
+                        let is_corners = is_face && FACE_LISTS.contains(&prop.as_str());
                         for _ in 0..len {
                             let tok = tokens.next().ok_or_else(too_few)?;
-                            tok.parse::<f64>().map_err(|_| bad(tok))?;
+                            if is_corners {
+                                corners.push(tok.parse::<i64>().map_err(|_| {
+                                    format_err(
+                                        path,
+                                        format!(
+                                            "line {line_no}: vertex index {} of face {i} is not \
+                                             an integer",
+                                            show(tok.as_bytes())
+                                        ),
+                                    )
+                                })?);
+                            } else {
+                                tok.parse::<f64>().map_err(|_| bad(tok))?;
+                            }
                         }
                     }
                 }
@@ -445,20 +652,24 @@ fn read_ascii(
                 ));
             }
             if is_vertex {
-                collector.push(vertex.p, vertex.c);
+                out.vertices.push(vertex);
+            } else if let (true, Some(faces)) = (is_face, out.faces.as_mut()) {
+                faces.push(&corners);
             }
         }
     }
     if let Some((line_no, _)) = lines.next() {
+        let extra = 1 + lines.count() as u64;
         return Err(format_err(
             path,
             format!(
                 "line {line_no}: unexpected data after the last element (does the header's \
-                 element count match the data?)"
+                 element count match the data?){}",
+                vertex_count_hint(header, Some(extra))
             ),
         ));
     }
-    Ok(collector)
+    Ok(())
 }
 
 /// A vertex to write.

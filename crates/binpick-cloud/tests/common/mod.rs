@@ -3,6 +3,17 @@
 
 #![allow(dead_code)]
 
+mod alloc_guard;
+mod mesh_files;
+mod mutate;
+
+#[allow(unused_imports)]
+pub use alloc_guard::ALLOC_LIMIT;
+#[allow(unused_imports)]
+pub use mesh_files::*;
+#[allow(unused_imports)]
+pub use mutate::mutate;
+
 use std::path::{Path, PathBuf};
 
 use binpick_cloud::PointCloud;
