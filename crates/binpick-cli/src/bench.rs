@@ -155,7 +155,7 @@ fn pose_differences(a: &Recognition, b: &Recognition) -> (bool, f64, f64) {
     let mut dt: f64 = 0.0;
     let mut dr: f64 = 0.0;
     for d in &a.detections {
-        if let Some(e) = b.detections.iter().find(|e| e.cluster == d.cluster) {
+        if let Some(e) = b.detections.iter().find(|e| e.found_by == d.found_by) {
             dt = dt.max((d.pose.translation.vector - e.pose.translation.vector).norm());
             dr = dr.max(d.pose.rotation.angle_to(&e.pose.rotation).to_degrees());
         } else {

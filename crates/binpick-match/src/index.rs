@@ -59,6 +59,23 @@ impl PointIndex {
         (n.item as usize, n.distance)
     }
 
+    /// Distance to the `k`-th nearest point that does not coincide with `q` (duplicates
+    /// closer than 1e-6 mm skipped), mm; None when there are fewer such points.
+    pub fn kth_nearest_distinct(&self, q: &P3, k: usize) -> Option<f32> {
+        let want = std::num::NonZeroUsize::new((2 * k + 2).min(self.len))?;
+        let found = self
+            .tree
+            .query(q)
+            .nearest_n::<SquaredEuclidean<f32>>(want)
+            .execute();
+        found
+            .iter()
+            .map(|n| n.distance)
+            .filter(|&d| d > 1e-12)
+            .nth(k.checked_sub(1)?)
+            .map(f32::sqrt)
+    }
+
     /// Replaces `out` with the indices of every point within `radius` of `q`, in no
     /// particular order.
     pub fn within_into(&self, q: &P3, radius: f32, out: &mut Vec<u32>) {

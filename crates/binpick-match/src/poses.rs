@@ -107,13 +107,17 @@ impl Symmetries {
     /// The equivalent pose `pose * S` whose rotation is closest to the identity: one pose per
     /// equivalence class (first in symmetry order on ties).
     pub fn canonical(&self, pose: &Isometry3<f64>) -> Isometry3<f64> {
-        let mut best = *pose;
+        pose * self.canonical_symmetry(pose)
+    }
+
+    /// The symmetry `S` of [`canonical`](Self::canonical).
+    pub fn canonical_symmetry(&self, pose: &Isometry3<f64>) -> Isometry3<f64> {
+        let mut best = Isometry3::identity();
         let mut best_angle = f64::INFINITY;
         for s in &self.transforms {
-            let p = pose * s;
-            let a = p.rotation.angle();
+            let a = (pose * s).rotation.angle();
             if a < best_angle - 1e-12 {
-                best = p;
+                best = *s;
                 best_angle = a;
             }
         }

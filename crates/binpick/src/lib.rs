@@ -40,13 +40,14 @@ pub mod validate;
 pub use binpick_cloud::{Point, PointCloud, Units};
 pub use error::{Error, Result};
 pub use params::{
-    Algorithm, ClusteringConfig, ConsensusConfig, FeatureConfig, FeatureSurface, IcpConfig,
-    ParamError, Params, PileSearchConfig, PreprocessConfig, Preset, RankingConfig,
-    RegionOfInterest, RuntimeConfig, SupportRemoval, ValidationConfig,
+    Algorithm, ClusteringConfig, ConsensusConfig, Engine, FeatureConfig, FeatureSurface,
+    IcpConfig, ParamError, Params, PileSearchConfig, PreprocessConfig, Preset, RankingConfig,
+    RegionOfInterest, RuntimeConfig, SensorConfig, SupportRemoval, ValidationConfig, VerifyConfig,
+    VotingConfig,
 };
 pub use recognizer::Recognizer;
 pub use result::{
-    ClusterReport, Detection, IcpReport, PreprocessReport, Recognition, RecognitionReport,
+    ClusterReport, Detection, FoundBy, IcpReport, ViewCheck, PreprocessReport, Recognition, RecognitionReport,
     RemovedPlane, Timings,
 };
 pub use stages::model::PreparedModel;

@@ -3,7 +3,7 @@
 
 mod support;
 
-use binpick::{Algorithm, Error, Params, PointCloud, Recognition, Recognizer, pose};
+use binpick::{Algorithm, Error, FoundBy, Params, PointCloud, Recognition, Recognizer, pose};
 use nalgebra::Isometry3;
 use support::*;
 
@@ -114,12 +114,20 @@ fn finds_every_instance_with_both_algorithms() {
         );
         assert!(last.final_score > r.detections[0].final_score);
         match algorithm {
-            Algorithm::SeparatedFpfh => {
-                assert!(r.detections.iter().all(|d| d.fpfh_radius_mm.is_some()))
-            }
-            Algorithm::MergedFpfh => {
-                assert!(r.detections.iter().all(|d| d.fpfh_radius_mm.is_none()))
-            }
+            Algorithm::SeparatedFpfh => assert!(r.detections.iter().all(|d| matches!(
+                d.found_by,
+                FoundBy::Cluster {
+                    fpfh_radius_mm: Some(_),
+                    ..
+                }
+            ))),
+            Algorithm::MergedFpfh => assert!(r.detections.iter().all(|d| matches!(
+                d.found_by,
+                FoundBy::Cluster {
+                    fpfh_radius_mm: None,
+                    ..
+                }
+            ))),
         }
     }
 }
