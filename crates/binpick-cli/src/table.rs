@@ -55,6 +55,35 @@ pub fn print_ranked(r: &Recognition) {
     }
 }
 
+/// What the scene-voting engine did, in one line, and why the best refused candidate was
+/// refused (the parameter to look at when nothing is found).
+pub fn voting_summary(v: &binpick::VotingReport) -> String {
+    let refused = v.best_refused.as_ref().map_or(String::new(), |b| {
+        format!(
+            "; best refused: visibility {:.0} %, free space {:.1} %, {} cells: {}",
+            100.0 * b.visibility,
+            100.0 * b.free_space,
+            b.explained_cells,
+            b.reason
+        )
+    });
+    format!(
+        "{}: {} samples, {} votes, {} hypotheses, {} candidates verified, {} accepted; refused: {} too little surface, {} low visibility, {} free space, {} no outline, {} poor fit, {} repeats{refused}",
+        v.sensor,
+        v.scene_samples,
+        v.votes,
+        v.hypotheses,
+        v.candidates,
+        v.accepted,
+        v.rejected_too_little_surface,
+        v.rejected_low_visibility,
+        v.rejected_free_space,
+        v.rejected_no_outline,
+        v.rejected_poor_fit,
+        v.rejected_explained
+    )
+}
+
 pub fn summary(r: &Recognition) -> String {
     let planes = r.preprocess.support_planes.len();
     let removed: usize = r.preprocess.support_planes.iter().map(|p| p.points).sum();

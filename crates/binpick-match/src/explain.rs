@@ -1,6 +1,6 @@
 //! Scene explanation: verified hypotheses compete for the scene surface they explain. The
-//! one that newly explains the most surface (less a penalty for its free-space
-//! contradictions) is taken first; a hypothesis whose surface is mostly explained already is
+//! one that newly explains the most surface, weighted by how well it fits (less a penalty
+//! for its free-space contradictions), is taken first; a hypothesis whose surface is mostly explained already is
 //! the same part again (or a worse pose of it) and is dropped. A greedy take on the global
 //! hypotheses verification of Aldoma et al. 2012: every part is reported once, and together
 //! the taken poses explain the pile.
@@ -16,6 +16,12 @@ pub struct ExplainConfig {
     /// Largest share of its visible surface the sensor may have seen through. Default 0.08,
     /// range 0-1.
     pub max_free_space: f64,
+    /// Largest share of its outline the scene's surface may carry on past. Default 0.5,
+    /// range 0-1.
+    pub max_continued: f64,
+    /// Smallest mean fit weight of the confirmed surface (`ViewScore::fit` / `explained`):
+    /// the scene must lie close to the model, not just within the tolerance. Range 0-1.
+    pub min_fit: f64,
     /// Fewest confirmed grid cells (the part must be seen, not guessed). Range >= 1.
     pub min_explained_cells: u32,
     /// Each free-space cell costs this many explained cells in the competition. Default 2,
@@ -35,6 +41,12 @@ impl ExplainConfig {
         }
         if !unit(self.max_free_space) {
             return Err(MatchError::config("max_free_space", "expected 0-1"));
+        }
+        if !unit(self.min_fit) {
+            return Err(MatchError::config("min_fit", "expected 0-1"));
+        }
+        if !unit(self.max_continued) {
+            return Err(MatchError::config("max_continued", "expected 0-1"));
         }
         if self.min_explained_cells == 0 {
             return Err(MatchError::config("min_explained_cells", "expected >= 1"));
@@ -56,6 +68,10 @@ impl ExplainConfig {
             Some(Rejection::LowVisibility)
         } else if s.free_space_ratio() > self.max_free_space {
             Some(Rejection::FreeSpace)
+        } else if s.mean_fit() < self.min_fit {
+            Some(Rejection::PoorFit)
+        } else if s.continued_ratio() > self.max_continued {
+            Some(Rejection::NoOutline)
         } else {
             None
         }
@@ -71,6 +87,10 @@ pub enum Rejection {
     LowVisibility,
     /// Free-space contradictions above `max_free_space`.
     FreeSpace,
+    /// The scene's surface carries on past more than `max_continued` of its outline.
+    NoOutline,
+    /// The confirmed surface fits worse than `min_fit`.
+    PoorFit,
     /// Its surface is already explained by a part taken before it.
     Explained,
 }
@@ -101,11 +121,15 @@ pub fn explain_scene(
         let mut still_open = Vec::with_capacity(open.len());
         for &i in &open {
             let s = &scores[i];
-            let new = s
-                .explained_cells
-                .iter()
-                .filter(|&&c| !claimed.get(c as usize).copied().unwrap_or(true))
-                .count() as f64;
+            // Newly explained cells, and their summed fit weights.
+            let (mut new, mut new_fit) = (0usize, 0.0f64);
+            for (&c, &fit) in s.explained_cells.iter().zip(&s.explained_fit) {
+                if !claimed.get(c as usize).copied().unwrap_or(true) {
+                    new += 1;
+                    new_fit += f64::from(fit);
+                }
+            }
+            let new = new as f64;
             if new < config.min_new_share * f64::from(s.explained)
                 || new < f64::from(config.min_explained_cells)
             {
@@ -113,7 +137,8 @@ pub fn explain_scene(
                 continue;
             }
             still_open.push(i);
-            let gain = new - config.free_space_weight * f64::from(s.free_space);
+            // Well-fitting surface counts more than surface at the edge of the tolerance.
+            let gain = new_fit - config.free_space_weight * f64::from(s.free_space);
             if best.is_none_or(|(g, _)| gain > g) {
                 best = Some((gain, i));
             }

@@ -139,6 +139,9 @@ pub struct RangeGrid {
     near: Vec<f32>,
     /// Whether the nearest surface in the cell is background (belt, bin floor or wall).
     background: Vec<bool>,
+    /// Unit normal of the nearest surface in the cell (NaN when unknown).
+    normal: Vec<[f32; 3]>,
+    max_normal_cos: f64,
     /// Depth tolerance, mm.
     tolerance_mm: f64,
 }
@@ -155,6 +158,9 @@ pub struct ViewConfig {
     /// Model surface steeper than this angle to the ray is not rendered (the grid cannot
     /// resolve it), degrees. Default 75, range 10-89.
     pub max_incidence_deg: f64,
+    /// A scene surface explains the model only where their normals differ by less than this,
+    /// degrees (where the scene has a normal). Default 45, range 1-180 (180 = off).
+    pub max_normal_angle_deg: f64,
 }
 
 impl ViewConfig {
@@ -168,6 +174,9 @@ impl ViewConfig {
         }
         if !(10.0..=89.0).contains(&self.max_incidence_deg) {
             return Err(MatchError::config("max_incidence_deg", "expected 10-89 deg"));
+        }
+        if !(1.0..=180.0).contains(&self.max_normal_angle_deg) {
+            return Err(MatchError::config("max_normal_angle_deg", "expected 1-180 deg"));
         }
         Ok(())
     }
@@ -186,8 +195,23 @@ pub struct ViewScore {
     pub free_space: u32,
     /// Cells with no measurement at all.
     pub missing: u32,
-    /// The explained cells (grid indices, ascending), for the scene explanation.
+    /// Cells where a scene surface lies at the model's depth but faces another way (counted
+    /// in neither `explained` nor `free_space`).
+    pub wrong_normal: u32,
+    /// Sum over explained cells of the fit weight `1 - (depth error / tolerance)^2` (a cell
+    /// explained only by a neighbour counts a quarter): how well, not only how much, the
+    /// scene confirms the model.
+    pub fit: f64,
+    /// Edges of the model's silhouette (cell sides between a rendered cell and an empty
+    /// one), and those where the scene's surface carries on past the edge at the model's
+    /// depth with the model's orientation (and is not belt or bin): a real part's outline
+    /// coincides with the scene's depth edges, a pose laid across other surfaces does not.
+    pub outline_edges: u32,
+    pub outline_continued: u32,
+    /// The explained cells (grid indices, ascending) and their fit weights, for the scene
+    /// explanation.
     pub explained_cells: Vec<u32>,
+    pub explained_fit: Vec<f32>,
     /// The occluded cells whose occluder is not background (a part lies on this one).
     pub covered: u32,
 }
@@ -208,6 +232,20 @@ impl ViewScore {
     pub fn covered_ratio(&self) -> f64 {
         ratio(self.covered, self.visible)
     }
+
+    /// Mean fit weight of the explained cells (0 when none).
+    pub fn mean_fit(&self) -> f64 {
+        if self.explained == 0 {
+            0.0
+        } else {
+            self.fit / f64::from(self.explained)
+        }
+    }
+
+    /// Share of the outline where the scene's surface carries on past it.
+    pub fn continued_ratio(&self) -> f64 {
+        ratio(self.outline_continued, self.outline_edges)
+    }
 }
 
 fn ratio(a: u32, b: u32) -> f64 {
@@ -215,19 +253,22 @@ fn ratio(a: u32, b: u32) -> f64 {
 }
 
 impl RangeGrid {
-    /// Projects the scene (`background[i]` marks belt/floor/wall points) into a grid.
+    /// Projects the scene (`background[i]` marks belt/floor/wall points; `normals[i]`, when
+    /// given, is point i's unit normal, NaN where undefined) into a grid.
     pub fn new(
         sensor: Sensor,
         config: &ViewConfig,
         points: &[P3],
         background: &[bool],
+        normals: Option<&[P3]>,
     ) -> Result<Self, MatchError> {
         config.validate()?;
-        if points.len() != background.len() {
+        let n_normals = normals.map_or(points.len(), <[P3]>::len);
+        if points.len() != background.len() || points.len() != n_normals {
             return Err(MatchError::Mismatch {
                 what: "range grid",
                 points: points.len(),
-                normals: background.len(),
+                normals: background.len().min(n_normals),
             });
         }
         if points.is_empty() {
@@ -296,12 +337,17 @@ impl RangeGrid {
         }
         let mut near = vec![f32::NAN; cols * rows];
         let mut bg = vec![false; cols * rows];
-        for ((c, r, closeness), &is_bg) in projected.iter().flatten().zip(background) {
+        let mut normal = vec![[f32::NAN; 3]; cols * rows];
+        for (i, proj) in projected.iter().enumerate() {
+            let Some((c, r, closeness)) = proj else {
+                continue;
+            };
             let k = (r - r0) as usize * cols + (c - c0) as usize;
             let v = *closeness as f32;
             if near[k].is_nan() || v > near[k] {
                 near[k] = v;
-                bg[k] = is_bg;
+                bg[k] = background[i];
+                normal[k] = normals.map_or([f32::NAN; 3], |n| n[i]);
             }
         }
         Ok(Self {
@@ -312,6 +358,8 @@ impl RangeGrid {
             rows,
             near,
             background: bg,
+            normal,
+            max_normal_cos: config.max_normal_angle_deg.to_radians().cos(),
             tolerance_mm: config.tolerance_mm,
         })
     }
@@ -333,15 +381,15 @@ impl RangeGrid {
     }
 
     /// Renders `model` (dense points with outward normals, model frame) at `pose` as the
-    /// sensor would see it alone: per cell the nearest model surface facing the sensor.
-    /// Returns `(cell (col, row), closeness mm, slack mm)` per rendered cell, in cell order.
+    /// sensor would see it alone: per cell the nearest model surface facing the sensor, in
+    /// cell order.
     fn render(
         &self,
         model: &OrientedPoints,
         pose: &Isometry3<f64>,
         max_incidence_cos: f64,
-    ) -> Vec<(i64, i64, f64, f64)> {
-        let mut cells: Vec<(i64, i64, f64, f64)> = Vec::with_capacity(model.len());
+    ) -> Vec<RenderedCell> {
+        let mut cells: Vec<RenderedCell> = Vec::with_capacity(model.len());
         for (p, n) in model.points.iter().zip(&model.normals) {
             let q = pose * to_point(p);
             let normal = pose.rotation * Vector3::new(f64::from(n[0]), f64::from(n[1]), f64::from(n[2]));
@@ -354,17 +402,32 @@ impl RangeGrid {
             };
             // Within one cell a slanted surface spans this much depth.
             let slope = (1.0 - cos * cos).max(0.0).sqrt() / cos;
-            let slack = slope * self.projector.cell_mm(closeness);
-            cells.push((u.floor() as i64, v.floor() as i64, closeness, slack));
+            cells.push(RenderedCell {
+                col: u.floor() as i64,
+                row: v.floor() as i64,
+                closeness,
+                slack: slope * self.projector.cell_mm(closeness),
+                normal,
+            });
         }
         // Nearest surface per cell: sort by cell, then closeness descending.
         cells.sort_by(|a, b| {
-            (a.1, a.0)
-                .cmp(&(b.1, b.0))
-                .then(b.2.total_cmp(&a.2))
+            (a.row, a.col)
+                .cmp(&(b.row, b.col))
+                .then(b.closeness.total_cmp(&a.closeness))
         });
-        cells.dedup_by(|next, kept| next.0 == kept.0 && next.1 == kept.1);
+        cells.dedup_by(|next, kept| next.col == kept.col && next.row == kept.row);
         cells
+    }
+
+    /// Whether the scene's normal in cell `k` agrees with `normal` (true where unknown).
+    fn normal_agrees(&self, k: usize, normal: &Vector3<f64>) -> bool {
+        let n = self.normal[k];
+        if !n.iter().all(|c| c.is_finite()) {
+            return true;
+        }
+        let n = Vector3::new(f64::from(n[0]), f64::from(n[1]), f64::from(n[2]));
+        n.dot(normal) >= self.max_normal_cos
     }
 
     /// Scores `model` (dense points with outward normals, model frame) at `pose`.
@@ -376,9 +439,12 @@ impl RangeGrid {
             ..ViewScore::default()
         };
         let tol = self.tolerance_mm;
-        for &(c, r, m, slack) in &rendered {
-            let t = tol + slack;
-            let (mut agree, mut front, mut behind, mut any) = (false, false, false, false);
+        for cell in &rendered {
+            let (c, r, m) = (cell.col, cell.row, cell.closeness);
+            let t = tol + cell.slack;
+            // Best fit among the neighbouring cells (one cell of lateral slack).
+            let mut best_fit: Option<f64> = None;
+            let (mut wrong_normal, mut front, mut behind, mut any) = (false, false, false, false);
             let mut front_is_object = false;
             for dr in -1..=1 {
                 for dc in -1..=1 {
@@ -390,9 +456,16 @@ impl RangeGrid {
                         continue;
                     }
                     any = true;
-                    if (v - m).abs() <= t {
-                        agree = true;
-                    } else if v > m {
+                    let dz = v - m;
+                    if dz.abs() <= t {
+                        if self.normal_agrees(k, &cell.normal) {
+                            let weight = if dr == 0 && dc == 0 { 1.0 } else { 0.25 };
+                            let fit = weight * (1.0 - (dz / t).powi(2));
+                            best_fit = Some(best_fit.map_or(fit, |b: f64| b.max(fit)));
+                        } else {
+                            wrong_normal = true;
+                        }
+                    } else if dz > 0.0 {
                         front = true;
                         if dr == 0 && dc == 0 {
                             front_is_object = !self.background[k];
@@ -402,11 +475,15 @@ impl RangeGrid {
                     }
                 }
             }
-            if agree {
+            if let Some(fit) = best_fit {
                 s.explained += 1;
+                s.fit += fit;
                 if let Some(k) = self.cell_index(c, r) {
                     s.explained_cells.push(k as u32);
+                    s.explained_fit.push(fit as f32);
                 }
+            } else if wrong_normal {
+                s.wrong_normal += 1;
             } else if front {
                 s.occluded += 1;
                 s.covered += u32::from(front_is_object);
@@ -416,9 +493,39 @@ impl RangeGrid {
                 s.missing += 1;
             }
         }
-        s.explained_cells.sort_unstable();
-        s.explained_cells.dedup();
+        self.outline(&rendered, &mut s);
         s
+    }
+
+    /// Counts the silhouette's edges and those the scene's surface carries on past (two
+    /// cells out, at the edge cell's depth within the tolerance, same orientation, not
+    /// background).
+    fn outline(&self, rendered: &[RenderedCell], s: &mut ViewScore) {
+        let has = |c: i64, r: i64| {
+            rendered
+                .binary_search_by(|e| (e.row, e.col).cmp(&(r, c)))
+                .is_ok()
+        };
+        let tol = self.tolerance_mm;
+        for cell in rendered {
+            for (dc, dr) in [(1, 0), (-1, 0), (0, 1), (0, -1)] {
+                if has(cell.col + dc, cell.row + dr) {
+                    continue;
+                }
+                s.outline_edges += 1;
+                let t = tol + cell.slack;
+                let carries = (1..=2).all(|k| {
+                    self.cell_index(cell.col + k * dc, cell.row + k * dr)
+                        .is_some_and(|i| {
+                            let v = f64::from(self.near[i]);
+                            !self.background[i]
+                                && (v - cell.closeness).abs() <= t
+                                && self.normal_agrees(i, &cell.normal)
+                        })
+                });
+                s.outline_continued += u32::from(carries);
+            }
+        }
     }
 
     /// Indices of the model points the sensor would see at `pose` (facing it and not behind
@@ -433,9 +540,9 @@ impl RangeGrid {
         let rendered = self.render(model, pose, cos_limit);
         let front = |c: i64, r: i64| {
             rendered
-                .binary_search_by(|e| (e.1, e.0).cmp(&(r, c)))
+                .binary_search_by(|e| (e.row, e.col).cmp(&(r, c)))
                 .ok()
-                .map(|i| (rendered[i].2, rendered[i].3))
+                .map(|i| (rendered[i].closeness, rendered[i].slack))
         };
         let mut out = Vec::new();
         for (i, (p, n)) in model.points.iter().zip(&model.normals).enumerate() {
@@ -458,6 +565,19 @@ impl RangeGrid {
         }
         out
     }
+}
+
+/// One cell of a rendered model: the nearest model surface in it.
+#[derive(Clone, Copy, Debug)]
+struct RenderedCell {
+    col: i64,
+    row: i64,
+    /// mm, grows towards the sensor.
+    closeness: f64,
+    /// Depth a slanted surface spans within the cell, mm.
+    slack: f64,
+    /// Outward unit normal, scene frame.
+    normal: Vector3<f64>,
 }
 
 fn to_point(p: &P3) -> Point3<f64> {

@@ -29,6 +29,7 @@ mod deadline;
 mod engines;
 pub mod error;
 pub mod params;
+pub mod part_file;
 pub mod pose;
 pub mod recognizer;
 #[cfg(feature = "reference")]
@@ -50,7 +51,12 @@ pub use result::{
     ClusterReport, Detection, FoundBy, IcpReport, ViewCheck, PreprocessReport, Recognition, RecognitionReport,
     RemovedPlane, Timings,
 };
+pub use part_file::{PartLoadReport, load_part};
 pub use stages::model::PreparedModel;
+pub use stages::part::{Part, PartSource};
+pub use stages::scale::{PartSize, Spacing};
+pub use binpick_match::Symmetries;
+pub use result::{DerivedScale, VotingReport};
 
 use std::path::Path;
 

@@ -185,6 +185,20 @@ impl Recognizer {
         self.recognize_within(scene, budget.map(Duration::from_millis))
     }
 
+    /// Like [`recognize`](Self::recognize) for a scan that says where its sensor was
+    /// (scene frame, mm; a PCD's `VIEWPOINT`): with `sensor = auto`, the scene-voting engine
+    /// then sees the scene from a camera there.
+    pub fn recognize_seen_from(
+        &self,
+        scene: &PointCloud,
+        sensor_position_mm: Option<[f64; 3]>,
+    ) -> Result<Recognition> {
+        let budget = self.params.runtime.time_budget_ms;
+        let deadline = Deadline::new(budget.map(Duration::from_millis));
+        self.pool
+            .install(|| self.run(scene, &deadline, sensor_position_mm))
+    }
+
     /// Like [`recognize`](Self::recognize) with an explicit time budget (`None` = unlimited).
     /// When the budget runs out the call returns [`Error::TimeBudget`] at the next check
     /// (between clusters, radii and thresholds).
@@ -194,21 +208,41 @@ impl Recognizer {
         budget: Option<Duration>,
     ) -> Result<Recognition> {
         let deadline = Deadline::new(budget);
-        self.pool.install(|| self.run(scene, &deadline))
+        self.pool.install(|| self.run(scene, &deadline, None))
     }
 
-    fn run(&self, scene: &PointCloud, deadline: &Deadline) -> Result<Recognition> {
+    fn run(
+        &self,
+        scene: &PointCloud,
+        deadline: &Deadline,
+        sensor_position_mm: Option<[f64; 3]>,
+    ) -> Result<Recognition> {
         match &self.thesis {
             Some(model) => self.run_thesis(model, scene, deadline),
-            None => self.run_scene_voting(scene, deadline),
+            None => self.run_scene_voting(scene, deadline, sensor_position_mm),
         }
     }
 
     /// The scene-voting pipeline: measure the scan, preprocess keeping the support, find
     /// every part (hypotheses from the whole scene, verified against the sensor's view,
     /// competing to explain it), rank.
-    fn run_scene_voting(&self, scene: &PointCloud, deadline: &Deadline) -> Result<Recognition> {
+    fn run_scene_voting(
+        &self,
+        scene: &PointCloud,
+        deadline: &Deadline,
+        sensor_position_mm: Option<[f64; 3]>,
+    ) -> Result<Recognition> {
         let p = &self.stages;
+        let seen_from;
+        let p = match (&p.verify.sensor, sensor_position_mm) {
+            (crate::params::SensorConfig::Auto, Some(position_mm)) => {
+                let mut q = p.clone();
+                q.verify.sensor = crate::params::SensorConfig::Camera { position_mm };
+                seen_from = q;
+                &seen_from
+            }
+            _ => p,
+        };
         let mut timings = Timings::default();
         let mut lap = Instant::now();
         let mut step = |t: &mut f64, stage: &'static str| {

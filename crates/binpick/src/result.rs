@@ -97,6 +97,13 @@ pub struct ViewCheck {
     pub covered: f64,
     /// Share with no measurement at all (shadow or absent surface).
     pub missing: f64,
+    /// Share of its outline the scene's surface carries on past (a pose laid across other
+    /// surfaces rather than on a part).
+    #[serde(default)]
+    pub continued: f64,
+    /// Mean fit weight of the confirmed surface (1 = the scene lies exactly on the model).
+    #[serde(default)]
+    pub fit: f64,
     /// Cells the model covers as the sensor would see it alone.
     pub visible_cells: u32,
 }
@@ -404,10 +411,30 @@ pub struct VotingReport {
     pub rejected_too_little_surface: usize,
     pub rejected_low_visibility: usize,
     pub rejected_free_space: usize,
+    #[serde(default)]
+    pub rejected_no_outline: usize,
+    #[serde(default)]
+    pub rejected_poor_fit: usize,
     pub rejected_explained: usize,
     /// The best refused candidate that was not a repeat of a taken part, when there is one.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub best_refused: Option<RefusedCandidate>,
+    /// Every verified candidate (with `report_candidates`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub candidates_detail: Vec<CandidateRecord>,
+}
+
+/// One verified candidate (`report_candidates`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CandidateRecord {
+    pub hypothesis: usize,
+    pub votes: u32,
+    /// Row-major 4x4, model -> scene, after refinement.
+    pub pose: RowMajor4x4,
+    pub view: ViewCheck,
+    pub explained_cells: u32,
+    /// "taken", or why it was refused.
+    pub verdict: String,
 }
 
 /// A refused candidate's figures and why it was refused.

@@ -21,15 +21,15 @@ use nalgebra::Isometry3;
 use rayon::prelude::*;
 
 use binpick_cloud::Point;
-use binpick_match::{ExplainConfig, Rejection, Sensor, ViewScore, explain_scene};
+use binpick_match::{ExplainConfig, OrientedPoints, Rejection, Sensor, ViewScore, explain_scene};
 
 use crate::deadline::{Deadline, ms};
 use crate::error::Result;
 use crate::params::Params;
 use crate::result::{
-    DerivedScale, Detection, FoundBy, IcpReport, RefusedCandidate, VotingReport,
+    CandidateRecord, DerivedScale, Detection, FoundBy, IcpReport, RefusedCandidate, VotingReport,
 };
-use crate::stages::hypotheses::{VotingModel, matching, scene_samples, vote};
+use crate::stages::hypotheses::{VotingModel, matching, scene_normals, scene_samples, vote};
 use crate::stages::part::Part;
 use crate::stages::rank::height_mm;
 use crate::stages::verify::{Verifier, resolve_sensor, view_check, viewpoint};
@@ -72,12 +72,14 @@ impl SceneVoting<'_> {
     pub(crate) fn detect(&self, points: &[Point], support: &[bool]) -> Result<VotingFound> {
         let p = self.params;
         let lap = Instant::now();
-        let world: Vec<Point> = points
-            .iter()
-            .zip(support)
-            .filter_map(|(q, s)| (!s).then_some(*q))
-            .collect();
         let sensor = resolve_sensor(&p.verify.sensor, p.ranking.up, points)?;
+        let normals = scene_normals(points, self.scale, viewpoint(&sensor, points), self.threads as u32)?;
+        let (world, world_normals): (Vec<Point>, Vec<[f32; 3]>) = points
+            .iter()
+            .zip(&normals)
+            .zip(support)
+            .filter_map(|((q, n), s)| (!s).then_some((*q, *n)))
+            .unzip();
         let mut report = VotingReport {
             sensor: describe(&sensor),
             ..VotingReport::default()
@@ -90,8 +92,13 @@ impl SceneVoting<'_> {
                 verify_ms: 0.0,
             });
         }
-        let view_from = viewpoint(&sensor, points);
-        let samples = scene_samples(&world, self.scale, view_from, self.threads as u32)?;
+        let samples = scene_samples(
+            OrientedPoints {
+                points: world.clone(),
+                normals: world_normals,
+            },
+            self.scale,
+        )?;
         self.deadline.check("scene normals")?;
         let (votes, hypotheses) = vote(self.model, self.part, &samples, self.scale, &p.voting)?;
         report.scene_samples = samples.len();
@@ -104,6 +111,7 @@ impl SceneVoting<'_> {
         let verifier = Verifier::new(
             sensor,
             points,
+            &normals,
             support,
             &world,
             self.model,
@@ -139,6 +147,20 @@ impl SceneVoting<'_> {
             .map_err(matching("scene explanation"))?;
         self.tally(&explanation.rejected, &scores, &mut report);
         report.accepted = explanation.taken.len();
+        if p.verify.report_candidates {
+            report.candidates_detail = candidates
+                .iter()
+                .zip(&explanation.rejected)
+                .map(|(c, why)| CandidateRecord {
+                    hypothesis: c.hypothesis,
+                    votes: c.votes,
+                    pose: binpick_cloud::pose_to_row_major(&c.pose),
+                    view: view_check(&c.score),
+                    explained_cells: c.score.explained,
+                    verdict: why.map_or("taken".to_owned(), |w| format!("{w:?}")),
+                })
+                .collect();
+        }
 
         let detections = explanation
             .taken
@@ -188,6 +210,8 @@ impl SceneVoting<'_> {
         ExplainConfig {
             min_visibility: v.min_visibility,
             max_free_space: v.max_free_space,
+            max_continued: v.max_continued,
+            min_fit: v.min_fit,
             min_explained_cells: (v.min_explained_share * verifier.typical_cells())
                 .ceil()
                 .max(1.0) as u32,
@@ -206,6 +230,8 @@ impl SceneVoting<'_> {
                 Rejection::TooLittleSurface => r.rejected_too_little_surface += 1,
                 Rejection::LowVisibility => r.rejected_low_visibility += 1,
                 Rejection::FreeSpace => r.rejected_free_space += 1,
+                Rejection::NoOutline => r.rejected_no_outline += 1,
+                Rejection::PoorFit => r.rejected_poor_fit += 1,
                 Rejection::Explained => r.rejected_explained += 1,
             }
             if *why != Rejection::Explained {
@@ -225,6 +251,10 @@ impl SceneVoting<'_> {
                     Rejection::TooLittleSurface => "too little confirmed surface (min_explained_share)",
                     Rejection::LowVisibility => "too little of its visible surface confirmed (min_visibility)",
                     Rejection::FreeSpace => "the sensor saw through it (max_free_space)",
+                    Rejection::NoOutline => {
+                        "the scene's surface carries on past its outline (max_continued)"
+                    }
+                    Rejection::PoorFit => "the scene lies too far from the model (min_fit)",
                     Rejection::Explained => "repeats a taken part (min_new_share)",
                 }
                 .to_owned(),

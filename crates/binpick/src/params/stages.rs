@@ -397,10 +397,12 @@ stage_config! {
     /// occluded, free-space and missing surface); hypotheses compete for scene surface
     /// (greedy scene explanation, after Aldoma et al. 2012).
     pub struct VerifyConfig {
-        /// View grid cell, in working resolutions (at least the scan's line gap).
+        /// View grid cell, in working resolutions.
         cell_resolutions: f64 = 1.0, within(0.25, 20.0, "x resolution");
         /// A model surface within this many cells (along the ray) of the scene's is explained.
-        tolerance_cells: f64 = 2.0, within(0.1, 20.0, "x cell");
+        tolerance_cells: f64 = 1.5, within(0.1, 20.0, "x cell");
+        /// ... and only where the surfaces' normals differ by less than this, deg.
+        max_normal_angle_deg: f64 = 45.0, within(1.0, 180.0, "deg");
         /// Model surface steeper than this to the sensor's ray is not judged, deg.
         max_incidence_deg: f64 = 75.0, within(10.0, 89.0, "deg");
         /// A part must show at least this share of the surface the sensor would see of it
@@ -408,6 +410,13 @@ stage_config! {
         min_visibility: f64 = 0.25, within(0.0, 1.0, "");
         /// The sensor may have seen through at most this share of that surface.
         max_free_space: f64 = 0.08, within(0.0, 1.0, "");
+        /// The scene's surface may carry on past at most this share of the part's outline
+        /// (a real part's outline is a depth edge of the scene).
+        max_continued: f64 = 1.0, within(0.0, 1.0, "");
+        /// The confirmed surface's mean fit weight, 1 - (depth error / tolerance)^2 with a
+        /// quarter for a neighbouring cell, must reach this (the scene must lie on the model,
+        /// not just near it).
+        min_fit: f64 = 0.7, within(0.0, 1.0, "");
         /// A part must explain at least this share of the cells the model covers in its
         /// median view (it must be seen, not guessed).
         min_explained_share: f64 = 0.1, within(0.0, 1.0, "");
@@ -422,6 +431,9 @@ stage_config! {
         near_symmetry_variants: bool = true, any();
         /// Where the sensor was (see [`SensorConfig`]).
         sensor: SensorConfig = SensorConfig::Auto, sensor();
+        /// Record every verified candidate (pose, view shares, verdict) in the result, for
+        /// diagnosing what was refused and why.
+        report_candidates: bool = false, any();
     }
 }
 

@@ -33,8 +33,6 @@ const SYMMETRY_SAMPLE_POINTS: usize = 600;
 pub(crate) struct VotingModel {
     /// The part's surface at the working resolution (what is rendered and aligned).
     pub dense: OrientedPoints,
-    /// The part's surface at the sampling step (what votes).
-    pub samples: OrientedPoints,
     pub table: PpfModel,
     /// Centroid of the surface, model frame.
     pub centre: Point3<f64>,
@@ -80,7 +78,6 @@ impl VotingModel {
         Ok(Self {
             centre: part.centre(),
             dense,
-            samples,
             table,
             near_symmetries,
         })
@@ -98,27 +95,28 @@ pub(crate) fn subsample(points: &OrientedPoints, leaf: f64) -> Result<OrientedPo
     })
 }
 
-/// The scene's samples at the sampling step with normals fitted on the whole `world`
-/// (PCL `NormalEstimationOMP`, oriented towards `viewpoint`); samples without a normal are
-/// dropped.
-pub(crate) fn scene_samples(
-    world: &[Point],
+/// Normals of `points` (PCL `NormalEstimationOMP` at the derived radius, oriented towards
+/// `viewpoint`; NaN where undefined).
+pub(crate) fn scene_normals(
+    points: &[Point],
     scale: &DerivedScale,
     viewpoint: [f64; 3],
     threads: u32,
-) -> Result<OrientedPoints> {
+) -> Result<Vec<[f32; 3]>> {
     let normals = binpick_pcl::estimate_normals(
-        world,
+        points,
         scale.normal_radius_mm as f32,
         viewpoint.map(|c| c as f32),
         threads,
     )
     .map_err(pcl("scene normals"))?;
-    let oriented = OrientedPoints {
-        points: world.to_vec(),
-        normals: normals.iter().map(|n| n.normal).collect(),
-    };
-    Ok(subsample(&oriented, scale.sampling_step_mm)?.with_defined_normals())
+    Ok(normals.iter().map(|n| n.normal).collect())
+}
+
+/// The scene's samples at the sampling step (the `world` points with their normals);
+/// samples without a normal are dropped.
+pub(crate) fn scene_samples(world: OrientedPoints, scale: &DerivedScale) -> Result<OrientedPoints> {
+    Ok(subsample(&world, scale.sampling_step_mm)?.with_defined_normals())
 }
 
 /// Votes over the scene samples and the strongest pose clusters, best first.

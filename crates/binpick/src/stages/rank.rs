@@ -133,6 +133,8 @@ pub(crate) fn rank_by_view(detections: &mut [Detection], cfg: &RankingConfig) {
             free_space: 0.0,
             covered: 1.0,
             missing: 0.0,
+            continued: 0.0,
+            fit: 0.0,
             visible_cells: 0,
         });
         let free = v.covered <= cfg.covered_max;

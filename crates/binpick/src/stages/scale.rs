@@ -18,7 +18,7 @@
 //! | connectivity          | 1.5 max(w, g) (support patches, clusters)                   |
 //! | sampling step         | max(`sampling_step_diameters` d, `min_sampling_step_resolutions` w) |
 //! | normal radius         | max(`normal_radius_steps` step, `min_normal_radius_resolutions` w) |
-//! | view cell             | `cell_resolutions` max(w, g)                                |
+//! | view cell             | `cell_resolutions` w                                        |
 //! | view tolerance        | `tolerance_cells` cell                                      |
 //! | part points           | visible area of one part / w^2 (cluster and support bounds) |
 
@@ -118,7 +118,7 @@ impl DerivedScale {
             .max(v.min_sampling_step_resolutions * resolution_mm);
         let normal_radius_mm = (v.normal_radius_steps * sampling_step_mm)
             .max(v.min_normal_radius_resolutions * resolution_mm);
-        let cell_mm = params.verify.cell_resolutions * wide;
+        let cell_mm = params.verify.cell_resolutions * resolution_mm;
         Ok(Self {
             model_diameter_mm: d,
             part_view_area_mm2: part.view_area_mm2,

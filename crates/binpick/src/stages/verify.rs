@@ -71,6 +71,7 @@ pub(crate) fn view_config(scale: &DerivedScale, cfg: &VerifyConfig) -> ViewConfi
         cell_mm: scale.cell_mm,
         tolerance_mm: scale.tolerance_mm,
         max_incidence_deg: cfg.max_incidence_deg,
+        max_normal_angle_deg: cfg.max_normal_angle_deg,
     }
 }
 
@@ -95,10 +96,12 @@ pub(crate) struct ThesisScores {
 }
 
 impl<'a> Verifier<'a> {
-    /// `points` is the whole preprocessed scene, `support` flags the belt/bin points.
+    /// `points` is the whole preprocessed scene with its `normals`, `support` flags the
+    /// belt/bin points.
     pub(crate) fn new(
         sensor: Sensor,
         points: &[Point],
+        normals: &[[f32; 3]],
         support: &[bool],
         world: &[Point],
         model: &'a VotingModel,
@@ -106,7 +109,8 @@ impl<'a> Verifier<'a> {
         cfg: &'a VerifyConfig,
     ) -> Result<Self> {
         let view = view_config(scale, cfg);
-        let grid = RangeGrid::new(sensor, &view, points, support).map_err(matching("view grid"))?;
+        let grid = RangeGrid::new(sensor, &view, points, support, Some(normals))
+            .map_err(matching("view grid"))?;
         Ok(Self {
             grid,
             view,
@@ -207,6 +211,8 @@ pub(crate) fn view_check(s: &ViewScore) -> ViewCheck {
         free_space: share(s.free_space),
         covered: share(s.covered),
         missing: share(s.missing),
+        continued: s.continued_ratio(),
+        fit: s.mean_fit(),
         visible_cells: s.visible,
     }
 }
