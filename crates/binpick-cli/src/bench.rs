@@ -170,7 +170,9 @@ pub fn run(a: Args) -> Result<()> {
     let mut params = a.params.params()?;
     if a.pipelines == BenchEngine::Both && !params.thesis_strict {
         params.thesis_strict = true;
-        log("--pipelines both: the library runs the thesis engine thesis-strict, as the reference does");
+        log(
+            "--pipelines both: the library runs the thesis engine thesis-strict, as the reference does",
+        );
     }
     let part = load_part(&a.model, a.params.model_units(&params), &params)?;
     let model = part.cloud.clone();
@@ -214,7 +216,9 @@ pub fn run(a: Args) -> Result<()> {
         let rust = match a.pipelines {
             BenchEngine::Rust | BenchEngine::Both => Some(measure(
                 "rust",
-                time_runs(a.repeat, || recognizer.recognize_seen_from(&scene, seen_from))?,
+                time_runs(a.repeat, || {
+                    recognizer.recognize_seen_from(&scene, seen_from)
+                })?,
             )),
             BenchEngine::Reference => None,
         };

@@ -108,15 +108,17 @@ impl ParamArgs {
 /// Loads a scan, converts it to mm and logs what loading did; also returns where its sensor
 /// was (mm), when the file says so (a PCD `VIEWPOINT` other than PCL's default).
 pub fn load_scene(path: &Path, units: Units) -> Result<(binpick::PointCloud, Option<[f64; 3]>)> {
-    let (cloud, report) =
-        binpick::load_cloud(path, units).context("cannot load the scene")?;
+    let (cloud, report) = binpick::load_cloud(path, units).context("cannot load the scene")?;
     log_loaded(path, units, "scene", &cloud, &report);
-    let seen_from = report
-        .sensor_viewpoint()
-        .map(|v| v.scaled(f64::from(units.to_mm())).position);
+    let seen_from = binpick::sensor_position(&report, units);
     if let Some(v) = seen_from {
+        let why = if report.sensor_viewpoint().is_some() {
+            "the file's VIEWPOINT"
+        } else {
+            "an organised cloud, in its camera's frame"
+        };
         log(&format!(
-            "scene sensor at ({:.0}, {:.0}, {:.0}) mm (the file's VIEWPOINT)",
+            "scene sensor at ({:.0}, {:.0}, {:.0}) mm ({why})",
             v[0], v[1], v[2]
         ));
     }
@@ -165,7 +167,10 @@ pub fn load_part(path: &Path, units: Units, params: &Params) -> Result<binpick::
         format!("scan of {} points", report.points)
     };
     let seen = report.viewpoint.map_or(String::new(), |(v, from)| {
-        format!(", scanned from ({:.0}, {:.0}, {:.0}) mm ({from})", v[0], v[1], v[2])
+        format!(
+            ", scanned from ({:.0}, {:.0}, {:.0}) mm ({from})",
+            v[0], v[1], v[2]
+        )
     });
     let sym = report.sidecar.as_ref().map_or(String::new(), |s| {
         format!(", {} symmetries from {}", report.symmetries, s.display())

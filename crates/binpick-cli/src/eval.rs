@@ -75,26 +75,32 @@ pub fn run(a: Args) -> Result<()> {
     ));
 
     let mut progress: Option<Progress> = None;
-    let run = evaluate_dataset(&dataset, &model, a.model_file, &params, |done, total, last| {
-        let p = progress.get_or_insert_with(|| Progress::new(total, "eval"));
-        let what = match &last.error {
-            Some(e) => format!("{}: ERROR {e}", last.id),
-            None => format!(
-                "{}: {} found, {:.0} ms",
-                last.id,
-                last.score.detections.len(),
-                last.time_ms
-            ),
-        };
-        p.step(done, &what);
-        if let Some(report) = &last.report {
-            // Written as we go, so a long run leaves partial results.
-            let _ = write_json(
-                &out.join("scenes").join(format!("{}.json", last.id)),
-                report,
-            );
-        }
-    })?;
+    let run = evaluate_dataset(
+        &dataset,
+        &model,
+        a.model_file,
+        &params,
+        |done, total, last| {
+            let p = progress.get_or_insert_with(|| Progress::new(total, "eval"));
+            let what = match &last.error {
+                Some(e) => format!("{}: ERROR {e}", last.id),
+                None => format!(
+                    "{}: {} found, {:.0} ms",
+                    last.id,
+                    last.score.detections.len(),
+                    last.time_ms
+                ),
+            };
+            p.step(done, &what);
+            if let Some(report) = &last.report {
+                // Written as we go, so a long run leaves partial results.
+                let _ = write_json(
+                    &out.join("scenes").join(format!("{}.json", last.id)),
+                    report,
+                );
+            }
+        },
+    )?;
     if let Some(p) = &progress {
         p.finish();
     }

@@ -49,8 +49,8 @@ pub fn run(a: Args) -> Result<()> {
         binpick::reference::recognize_reference(&part.cloud, &scene, &params)
             .context("reference recognition failed")?
     } else {
-        let recognizer =
-            Recognizer::with_part(part.clone(), params.clone()).context("cannot prepare the model")?;
+        let recognizer = Recognizer::with_part(part.clone(), params.clone())
+            .context("cannot prepare the model")?;
         if let Some(m) = recognizer.model() {
             log(&format!(
                 "model prepared in {:.0} ms: {} points, {} keypoints, {} FPFH radii, diameter {:.1} mm; {} thread(s)",
@@ -96,7 +96,13 @@ pub fn run(a: Args) -> Result<()> {
         let p = write_params_next_to(out, &params)?;
         log(&format!("wrote {} and {}", out.display(), p.display()));
     }
-    write_pictures(&report, &scene, &part.cloud, a.png.as_deref(), a.ply.as_deref())
+    write_pictures(
+        &report,
+        &scene,
+        &part.cloud,
+        a.png.as_deref(),
+        a.ply.as_deref(),
+    )
 }
 
 /// PNG and PLY outputs of one result.

@@ -43,7 +43,8 @@ struct Summary<'a> {
 pub fn run(a: Args) -> Result<()> {
     let params = a.params.params()?;
     let part = load_part(&a.model, a.params.model_units(&params), &params)?;
-    let recognizer = Recognizer::with_part(part, params.clone()).context("cannot prepare the model")?;
+    let recognizer =
+        Recognizer::with_part(part, params.clone()).context("cannot prepare the model")?;
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("cannot create {}", a.out.display()))?;
     let model_name = a.model.display().to_string();

@@ -16,7 +16,16 @@ fn rpy_deg(p: &nalgebra::Isometry3<f64>) -> [f64; 3] {
 pub fn print_ranked(r: &Recognition) {
     println!(
         "{:>4}  {:>6}  {:>8}  {:>10}  {:>9} {:>9} {:>9}  {:>7} {:>7} {:>7}  {:<22}  why",
-        "rank", "vis %", "final %", "init mm^2", "x mm", "y mm", "z mm", "roll", "pitch", "yaw",
+        "rank",
+        "vis %",
+        "final %",
+        "init mm^2",
+        "x mm",
+        "y mm",
+        "z mm",
+        "roll",
+        "pitch",
+        "yaw",
         "found by"
     );
     for d in &r.detections {

@@ -82,7 +82,9 @@ impl std::str::FromStr for ModelFile {
         match s {
             "scan" => Ok(ModelFile::Scan),
             "mesh" => Ok(ModelFile::Mesh),
-            other => Err(format!("unknown model file {other:?}: expected scan or mesh")),
+            other => Err(format!(
+                "unknown model file {other:?}: expected scan or mesh"
+            )),
         }
     }
 }
@@ -194,9 +196,7 @@ fn evaluate_scene(
     model: &str,
 ) -> Result<(RecognitionReport, SceneScore)> {
     let (scene, loaded) = load_cloud(scene_path, gt.units)?;
-    let seen_from = loaded
-        .sensor_viewpoint()
-        .map(|v| v.scaled(f64::from(gt.units.to_mm())).position);
+    let seen_from = binpick::sensor_position(&loaded, gt.units);
     let recognition = recognizer.recognize_seen_from(&scene, seen_from)?;
     let truth: Vec<TruthInstance> = gt
         .instances
@@ -252,9 +252,7 @@ pub fn replay_scan(
 ) -> ReplayResult {
     let run = || -> Result<RecognitionReport> {
         let (scene, loaded) = load_cloud(scan, units)?;
-        let seen_from = loaded
-            .sensor_viewpoint()
-            .map(|v| v.scaled(f64::from(units.to_mm())).position);
+        let seen_from = binpick::sensor_position(&loaded, units);
         let r = recognizer.recognize_seen_from(&scene, seen_from)?;
         Ok(RecognitionReport::new(
             &scan.display().to_string(),

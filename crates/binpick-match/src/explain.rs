@@ -113,7 +113,9 @@ pub fn explain_scene(
 ) -> Result<Explanation, MatchError> {
     config.validate()?;
     let mut rejected: Vec<Option<Rejection>> = scores.iter().map(|s| config.rejection(s)).collect();
-    let mut open: Vec<usize> = (0..scores.len()).filter(|&i| rejected[i].is_none()).collect();
+    let mut open: Vec<usize> = (0..scores.len())
+        .filter(|&i| rejected[i].is_none())
+        .collect();
     let mut claimed = vec![false; cells];
     let mut taken = Vec::new();
     loop {

@@ -12,7 +12,9 @@ pub struct PointIndex {
 
 impl std::fmt::Debug for PointIndex {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("PointIndex").field("len", &self.len).finish()
+        f.debug_struct("PointIndex")
+            .field("len", &self.len)
+            .finish()
     }
 }
 
@@ -84,6 +86,6 @@ impl PointIndex {
             .query(q)
             .within::<SquaredEuclidean<f32>>(radius * radius)
             .unsorted()
-            .visit(|n| out.push(n.item as u32));
+            .visit(|n| out.push(n.item));
     }
 }

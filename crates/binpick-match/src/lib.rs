@@ -19,10 +19,10 @@ pub mod poses;
 pub mod ppf;
 pub mod view;
 
+pub use explain::{ExplainConfig, Explanation, Rejection, explain_scene};
 pub use index::PointIndex;
 pub use poses::{PoseCluster, PoseClustering, Symmetries, cluster_poses};
 pub use ppf::{PpfConfig, PpfModel, Vote, VotingConfig};
-pub use explain::{ExplainConfig, Explanation, Rejection, explain_scene};
 pub use view::{RangeGrid, Sensor, ViewConfig, ViewScore};
 
 /// One point `[x, y, z]`, mm.
@@ -96,7 +96,9 @@ pub enum MatchError {
         points: usize,
         needed: usize,
     },
-    #[error("{what}: {points} points, more than the {limit} this stage handles (sample it coarser)")]
+    #[error(
+        "{what}: {points} points, more than the {limit} this stage handles (sample it coarser)"
+    )]
     TooManyPoints {
         what: &'static str,
         points: usize,

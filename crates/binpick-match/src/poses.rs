@@ -228,6 +228,6 @@ pub fn cluster_poses(
             }
         }
     }
-    clusters.sort_by(|a, b| b.votes.cmp(&a.votes));
+    clusters.sort_by_key(|c| std::cmp::Reverse(c.votes));
     Ok(clusters)
 }

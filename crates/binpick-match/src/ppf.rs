@@ -15,8 +15,8 @@
 use nalgebra::{Isometry3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
-use crate::{MatchError, OrientedPoints, P3};
 use crate::index::PointIndex;
+use crate::{MatchError, OrientedPoints, P3};
 
 /// Quantisation and pairing of the point-pair features.
 #[derive(Clone, Debug, PartialEq)]
@@ -49,7 +49,10 @@ impl PpfConfig {
             return Err(MatchError::config("distance_step_mm", "expected > 0 mm"));
         }
         if !positive(self.max_pair_distance_mm) {
-            return Err(MatchError::config("max_pair_distance_mm", "expected > 0 mm"));
+            return Err(MatchError::config(
+                "max_pair_distance_mm",
+                "expected > 0 mm",
+            ));
         }
         if !(4..=90).contains(&self.feature_angle_bins) {
             return Err(MatchError::config("feature_angle_bins", "expected 4-90"));
@@ -115,7 +118,7 @@ impl Frame {
 fn feature(p1: &P3, n1: &P3, p2: &P3, n2: &P3) -> Option<[f32; 4]> {
     let d = Vector3::from(*p2) - Vector3::from(*p1);
     let dist = d.norm();
-    if !(dist > 1e-6) {
+    if dist.is_nan() || dist <= 1e-6 {
         return None;
     }
     let d = d / dist;
@@ -241,7 +244,15 @@ impl PpfModel {
                     }
                     let phi = frames[i].phi(&model.points[j]);
                     quant.spread_keys(&f, config.spread as f32, &mut keys);
-                    out.extend(keys.iter().map(|&k| (k, Entry { point: i as u32, phi })));
+                    out.extend(keys.iter().map(|&k| {
+                        (
+                            k,
+                            Entry {
+                                point: i as u32,
+                                phi,
+                            },
+                        )
+                    }));
                 }
                 out
             })
@@ -256,13 +267,7 @@ impl PpfModel {
         }
         let offsets = counts.clone();
         let total = offsets[n_keys] as usize;
-        let mut entries = vec![
-            Entry {
-                point: 0,
-                phi: 0.0
-            };
-            total
-        ];
+        let mut entries = vec![Entry { point: 0, phi: 0.0 }; total];
         let mut cursor = counts;
         for (k, e) in per_point.into_iter().flatten() {
             let slot = &mut cursor[k as usize];
@@ -494,7 +499,7 @@ impl Quantiser {
         let mut b = [0u32; 4];
         for k in 0..4 {
             let v = c[k].floor();
-            if !(v >= 0.0) {
+            if v.is_nan() || v < 0.0 {
                 return None;
             }
             // Angles of exactly pi fall in the last bin.
@@ -521,7 +526,7 @@ impl Quantiser {
             } else {
                 floor
             };
-            if !(v >= 0.0) || v as u32 >= lim[k] {
+            if v.is_nan() || v < 0.0 || v as u32 >= lim[k] {
                 return;
             }
             let b = v as u32;
@@ -666,6 +671,11 @@ pub(crate) mod tests {
         assert!(e.to_string().contains("distance_step_mm"), "{e}");
         c.distance_step_mm = 3.0;
         c.spread = 0.7;
-        assert!(PpfModel::new(&model, c).unwrap_err().to_string().contains("spread"));
+        assert!(
+            PpfModel::new(&model, c)
+                .unwrap_err()
+                .to_string()
+                .contains("spread")
+        );
     }
 }

@@ -42,7 +42,10 @@ impl Sensor {
     pub fn orthographic(up: [f64; 3]) -> Result<Self, MatchError> {
         let v = Vector3::from(up);
         if !(v.norm().is_finite() && v.norm() > 1e-9) {
-            return Err(MatchError::config("up", "expected a finite, non-zero vector"));
+            return Err(MatchError::config(
+                "up",
+                "expected a finite, non-zero vector",
+            ));
         }
         Ok(Self::Orthographic { up: v.normalize() })
     }
@@ -104,7 +107,11 @@ impl Projector {
         match &self.sensor {
             Sensor::Orthographic { .. } => {
                 let v = p.coords;
-                Some((v.dot(&self.e1) / self.cell, v.dot(&self.e2) / self.cell, v.dot(&self.a)))
+                Some((
+                    v.dot(&self.e1) / self.cell,
+                    v.dot(&self.e2) / self.cell,
+                    v.dot(&self.a),
+                ))
             }
             Sensor::Perspective { position, .. } => {
                 let q = p - position;
@@ -112,7 +119,11 @@ impl Projector {
                 if z <= 1e-6 {
                     return None;
                 }
-                Some((q.dot(&self.e1) / z / self.cell, q.dot(&self.e2) / z / self.cell, -z))
+                Some((
+                    q.dot(&self.e1) / z / self.cell,
+                    q.dot(&self.e2) / z / self.cell,
+                    -z,
+                ))
             }
         }
     }
@@ -173,10 +184,16 @@ impl ViewConfig {
             return Err(MatchError::config("tolerance_mm", "expected > 0 mm"));
         }
         if !(10.0..=89.0).contains(&self.max_incidence_deg) {
-            return Err(MatchError::config("max_incidence_deg", "expected 10-89 deg"));
+            return Err(MatchError::config(
+                "max_incidence_deg",
+                "expected 10-89 deg",
+            ));
         }
         if !(1.0..=180.0).contains(&self.max_normal_angle_deg) {
-            return Err(MatchError::config("max_normal_angle_deg", "expected 1-180 deg"));
+            return Err(MatchError::config(
+                "max_normal_angle_deg",
+                "expected 1-180 deg",
+            ));
         }
         Ok(())
     }
@@ -249,7 +266,11 @@ impl ViewScore {
 }
 
 fn ratio(a: u32, b: u32) -> f64 {
-    if b == 0 { 0.0 } else { f64::from(a) / f64::from(b) }
+    if b == 0 {
+        0.0
+    } else {
+        f64::from(a) / f64::from(b)
+    }
 }
 
 impl RangeGrid {
@@ -392,7 +413,8 @@ impl RangeGrid {
         let mut cells: Vec<RenderedCell> = Vec::with_capacity(model.len());
         for (p, n) in model.points.iter().zip(&model.normals) {
             let q = pose * to_point(p);
-            let normal = pose.rotation * Vector3::new(f64::from(n[0]), f64::from(n[1]), f64::from(n[2]));
+            let normal =
+                pose.rotation * Vector3::new(f64::from(n[0]), f64::from(n[1]), f64::from(n[2]));
             let cos = normal.dot(&self.projector.sensor.towards(&q));
             if cos < max_incidence_cos {
                 continue;
@@ -431,7 +453,12 @@ impl RangeGrid {
     }
 
     /// Scores `model` (dense points with outward normals, model frame) at `pose`.
-    pub fn score(&self, model: &OrientedPoints, pose: &Isometry3<f64>, config: &ViewConfig) -> ViewScore {
+    pub fn score(
+        &self,
+        model: &OrientedPoints,
+        pose: &Isometry3<f64>,
+        config: &ViewConfig,
+    ) -> ViewScore {
         let cos_limit = config.max_incidence_deg.to_radians().cos();
         let rendered = self.render(model, pose, cos_limit);
         let mut s = ViewScore {
@@ -547,7 +574,8 @@ impl RangeGrid {
         let mut out = Vec::new();
         for (i, (p, n)) in model.points.iter().zip(&model.normals).enumerate() {
             let q = pose * to_point(p);
-            let normal = pose.rotation * Vector3::new(f64::from(n[0]), f64::from(n[1]), f64::from(n[2]));
+            let normal =
+                pose.rotation * Vector3::new(f64::from(n[0]), f64::from(n[1]), f64::from(n[2]));
             if normal.dot(&self.projector.sensor.towards(&q)) < 0.0 {
                 continue;
             }

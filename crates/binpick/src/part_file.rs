@@ -31,6 +31,9 @@ use crate::stages::part::Part;
 
 /// A declared revolution symmetry is sampled every this many degrees.
 pub const REVOLUTION_STEP_DEG: f64 = 5.0;
+/// A scanned model whose centre lies this many extents from the origin was captured by a
+/// camera at the origin (a cloud in its camera's frame).
+const CAMERA_FRAME_EXTENTS: f64 = 2.0;
 /// A mesh is sampled this finely, in model extents (bounding-box diagonals): finer than any
 /// working resolution (never below 1/100 of the diameter).
 const MESH_SAMPLING_EXTENTS: f64 = 1.0 / 250.0;
@@ -54,9 +57,7 @@ impl Sidecar {
             .symmetries
             .iter()
             .enumerate()
-            .map(|(i, m)| {
-                pose_from_row_major(m).map_err(|e| bad(format!("symmetry {i}: {e}")))
-            })
+            .map(|(i, m)| pose_from_row_major(m).map_err(|e| bad(format!("symmetry {i}: {e}"))))
             .collect::<Result<_>>()?;
         match &self.revolution_axis {
             None => Ok(Symmetries::new(&listed)),
@@ -79,9 +80,8 @@ pub fn read_sidecar(model: &Path) -> Result<Option<Sidecar>> {
     if !path.exists() {
         return Ok(None);
     }
-    let text = std::fs::read_to_string(&path).map_err(|e| {
-        input("model sidecar", format!("{}: {e}", path.display()))
-    })?;
+    let text = std::fs::read_to_string(&path)
+        .map_err(|e| input("model sidecar", format!("{}: {e}", path.display())))?;
     serde_json::from_str(&text)
         .map(Some)
         .map_err(|e| input("model sidecar", format!("{}: {e}", path.display())))
@@ -109,7 +109,10 @@ pub fn load_part(path: &Path, units: Units, params: &Params) -> Result<(Part, Pa
     let (part, mesh, viewpoint) = match model {
         Model::Mesh(m) => {
             let bounds = m.mesh.bounds().ok_or_else(|| {
-                input("model", format!("{}: the mesh has no vertices", path.display()))
+                input(
+                    "model",
+                    format!("{}: the mesh has no vertices", path.display()),
+                )
             })?;
             let spacing = f64::from(bounds.diagonal()) * MESH_SAMPLING_EXTENTS;
             let samples = m
@@ -126,9 +129,19 @@ pub fn load_part(path: &Path, units: Units, params: &Params) -> Result<(Part, Pa
             (Part::from_surface(surface, m.mesh.area())?, true, None)
         }
         Model::Cloud(c) => {
-            let (viewpoint, from) = match c.report.sensor_viewpoint() {
-                Some(v) => (v.position, "the file's VIEWPOINT"),
-                None => (params.features.model_viewpoint_mm, "model_viewpoint_mm"),
+            let far_from_origin = c.cloud.bounds().is_some_and(|b| {
+                let centre = binpick_cloud::centroid(&c.cloud.points).unwrap_or([0.0; 3]);
+                let dist = centre.iter().map(|x| x * x).sum::<f64>().sqrt();
+                dist > CAMERA_FRAME_EXTENTS * f64::from(b.diagonal())
+            });
+            let (viewpoint, from) = match (c.report.sensor_viewpoint(), c.report.height > 1) {
+                (Some(v), _) => (v.position, "the file's VIEWPOINT"),
+                (None, true) => ([0.0; 3], "an organised cloud, in its camera's frame"),
+                (None, false) if far_from_origin => (
+                    [0.0; 3],
+                    "far from the origin: a cloud in its camera's frame",
+                ),
+                (None, false) => (params.features.model_viewpoint_mm, "model_viewpoint_mm"),
             };
             let part = Part::from_scan(&c.cloud, viewpoint, threads)?;
             (part, false, Some((viewpoint, from)))

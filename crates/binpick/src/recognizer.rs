@@ -31,6 +31,9 @@ use crate::stages::preprocess::{check_units, preprocess, preprocess_keeping_supp
 use crate::stages::rank::{rank_by_view, rank_detections, suppress_duplicates};
 use crate::stages::scale::measure_spacing;
 
+/// Identifies the scale a scene-voting model was prepared for.
+type ModelKey = (u64, u64);
+
 /// A prepared model plus parameters and worker threads. `Send + Sync`: one instance can serve
 /// many threads (each call to `recognize` uses the recognizer's own thread pool).
 pub struct Recognizer {
@@ -43,7 +46,7 @@ pub struct Recognizer {
     thesis: Option<PreparedModel>,
     /// The scene-voting engine's model, prepared once per working scale (scans from one
     /// scanner share one).
-    voting: Mutex<Vec<((u64, u64), Arc<VotingModel>)>>,
+    voting: Mutex<Vec<(ModelKey, Arc<VotingModel>)>>,
     pool: rayon::ThreadPool,
     threads: usize,
     preparation: Mutex<Duration>,
@@ -139,10 +142,7 @@ impl Recognizer {
     /// Time spent preparing the model so far (in `new`, and for the scene-voting engine at
     /// the first scan of each new scale).
     pub fn preparation(&self) -> Duration {
-        self.preparation
-            .lock()
-            .map(|d| *d)
-            .unwrap_or_default()
+        self.preparation.lock().map(|d| *d).unwrap_or_default()
     }
 
     /// Worker threads in use.
@@ -380,7 +380,10 @@ impl Recognizer {
             detections = suppress_duplicates(detections, keypoints, d, overlap);
         }
         for c in clusters.iter_mut() {
-            c.detections = detections.iter().filter(|d| d.cluster() == Some(c.index)).count();
+            c.detections = detections
+                .iter()
+                .filter(|d| d.cluster() == Some(c.index))
+                .count();
         }
         rank_detections(&mut detections, p.ranking.rank_score_band_pct);
         let duplicates = found - detections.len();

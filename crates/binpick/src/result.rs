@@ -225,7 +225,9 @@ impl TryFrom<DetectionJson> for Detection {
                 sac_inliers: d.sac_inliers.unwrap_or(0),
             },
             (None, None) => {
-                return Err("detection has neither `votes` nor `cluster`: which engine found it?".into());
+                return Err(
+                    "detection has neither `votes` nor `cluster`: which engine found it?".into(),
+                );
             }
         };
         Ok(Self {

@@ -314,7 +314,7 @@ fn other_options_match_too() {
         }),
         ("no support removal, 2 mm voxels", {
             let mut p = cheap.clone();
-            p.preprocess.resolution_mm = 2.0;
+            p.preprocess.resolution_mm = Some(2.0);
             p.features.initial_leaf_mm = 4.0;
             p.icp.final_leaf_mm = 3.0;
             p.preprocess.support = binpick::params::SupportRemoval {
@@ -434,7 +434,7 @@ fn reference_rejects_bad_input() {
         (
             {
                 let mut p = p.clone();
-                p.preprocess.resolution_mm = f64::NAN;
+                p.preprocess.resolution_mm = Some(f64::NAN);
                 p
             },
             "resolution_mm",

@@ -32,7 +32,7 @@ use crate::result::{
 use crate::stages::hypotheses::{VotingModel, matching, scene_normals, scene_samples, vote};
 use crate::stages::part::Part;
 use crate::stages::rank::height_mm;
-use crate::stages::verify::{Verifier, resolve_sensor, view_check, viewpoint};
+use crate::stages::verify::{SceneSurface, Verifier, resolve_sensor, view_check, viewpoint};
 
 /// What the engine found in the scene.
 pub(crate) struct VotingFound {
@@ -73,13 +73,25 @@ impl SceneVoting<'_> {
         let p = self.params;
         let lap = Instant::now();
         let sensor = resolve_sensor(&p.verify.sensor, p.ranking.up, points)?;
-        let normals = scene_normals(points, self.scale, viewpoint(&sensor, points), self.threads as u32)?;
+        let normals = scene_normals(
+            points,
+            self.scale,
+            viewpoint(&sensor, points),
+            self.threads as u32,
+        )?;
         let (world, world_normals): (Vec<Point>, Vec<[f32; 3]>) = points
             .iter()
             .zip(&normals)
             .zip(support)
             .filter_map(|((q, n), s)| (!s).then_some((*q, *n)))
             .unzip();
+        let surface = SceneSurface {
+            points: points.to_vec(),
+            normals,
+            support: support.to_vec(),
+            world,
+        };
+        let world = &surface.world;
         let mut report = VotingReport {
             sensor: describe(&sensor),
             ..VotingReport::default()
@@ -108,16 +120,7 @@ impl SceneVoting<'_> {
         let voting_ms = ms(lap.elapsed());
 
         let lap = Instant::now();
-        let verifier = Verifier::new(
-            sensor,
-            points,
-            &normals,
-            support,
-            &world,
-            self.model,
-            self.scale,
-            &p.verify,
-        )?;
+        let verifier = Verifier::new(sensor, &surface, self.model, self.scale, &p.verify)?;
         let mut candidates: Vec<Candidate> = hypotheses
             .par_iter()
             .enumerate()
@@ -248,8 +251,12 @@ impl SceneVoting<'_> {
                 free_space: s.free_space_ratio(),
                 explained_cells: s.explained,
                 reason: match why {
-                    Rejection::TooLittleSurface => "too little confirmed surface (min_explained_share)",
-                    Rejection::LowVisibility => "too little of its visible surface confirmed (min_visibility)",
+                    Rejection::TooLittleSurface => {
+                        "too little confirmed surface (min_explained_share)"
+                    }
+                    Rejection::LowVisibility => {
+                        "too little of its visible surface confirmed (min_visibility)"
+                    }
                     Rejection::FreeSpace => "the sensor saw through it (max_free_space)",
                     Rejection::NoOutline => {
                         "the scene's surface carries on past its outline (max_continued)"
@@ -296,7 +303,10 @@ fn describe(sensor: &Sensor) -> String {
             position.x, position.y, position.z
         ),
         Sensor::Orthographic { up } => {
-            format!("scanner above, along ({:.2}, {:.2}, {:.2})", up.x, up.y, up.z)
+            format!(
+                "scanner above, along ({:.2}, {:.2}, {:.2})",
+                up.x, up.y, up.z
+            )
         }
     }
 }

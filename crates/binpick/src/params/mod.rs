@@ -318,9 +318,24 @@ mod tests {
     use super::*;
 
     #[test]
-    fn defaults_are_thesis_4_3() {
+    fn defaults_are_scale_free_and_use_scene_voting() {
         let p = Params::default();
-        assert_eq!(p.preprocess.resolution_mm, 1.0);
+        assert_eq!(p.engine, Engine::SceneVoting);
+        assert_eq!(p.preprocess.resolution_mm, None, "measured on every scan");
+        assert_eq!(p.preprocess.support.distance_mm, None);
+        p.validate().unwrap();
+        // thesis_strict runs the thesis engine.
+        let strict = Params {
+            thesis_strict: true,
+            ..Params::default()
+        };
+        assert_eq!(strict.stages().engine, Engine::Thesis);
+    }
+
+    #[test]
+    fn thesis_preset_is_4_3() {
+        let p = Preset::Thesis.params();
+        assert_eq!(p.preprocess.resolution_mm, Some(1.0));
         assert_eq!(p.cluster_tolerance_mm(), 1.5);
         assert_eq!(
             (
@@ -403,7 +418,7 @@ mod tests {
         let back = Params::from_toml(&p.to_toml()).unwrap();
         assert_eq!(back, p);
         let partial = Params::from_toml("resolution_mm = 2.0\nalgorithm = \"2\"\n").unwrap();
-        assert_eq!(partial.preprocess.resolution_mm, 2.0);
+        assert_eq!(partial.preprocess.resolution_mm, Some(2.0));
         assert_eq!(partial.algorithm, Algorithm::MergedFpfh);
         assert_eq!(partial.features.initial_leaf_mm, 3.0);
         assert!(Params::from_toml("resolutoin_mm = 2.0").is_err());
@@ -413,7 +428,7 @@ mod tests {
         )
         .unwrap();
         assert_eq!(over.icp.final_leaf_mm, 1.0);
-        assert_eq!(over.preprocess.support.distance_mm, 2.5);
+        assert_eq!(over.preprocess.support.distance_mm, Some(2.5));
         assert_eq!(
             over.preprocess.support.max_planes, 5,
             "other [support] keys keep the base value"
@@ -436,9 +451,12 @@ mod tests {
             p
         };
         let cases: Vec<(Params, &str)> = vec![
-            (set(&|p| p.preprocess.resolution_mm = 0.0), "resolution_mm"),
             (
-                set(&|p| p.preprocess.resolution_mm = f64::NAN),
+                set(&|p| p.preprocess.resolution_mm = Some(0.0)),
+                "resolution_mm",
+            ),
+            (
+                set(&|p| p.preprocess.resolution_mm = Some(f64::NAN)),
                 "resolution_mm",
             ),
             (set(&|p| p.features.fpfh_radii_mm = vec![]), "fpfh_radii_mm"),

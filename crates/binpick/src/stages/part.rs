@@ -69,7 +69,12 @@ impl Part {
     /// is the mesh's surface area; one view shows about half of it.
     pub fn from_surface(surface: OrientedPoints, area_mm2: f64) -> Result<Self> {
         let cloud = PointCloud::new(surface.points.clone());
-        Self::new(surface.with_defined_normals(), cloud, 0.5 * area_mm2, PartSource::Mesh)
+        Self::new(
+            surface.with_defined_normals(),
+            cloud,
+            0.5 * area_mm2,
+            PartSource::Mesh,
+        )
     }
 
     fn new(
@@ -90,7 +95,7 @@ impl Part {
         let step = surface.len().div_ceil(DIAMETER_POINTS).max(1);
         let sample: Vec<Point> = surface.points.iter().step_by(step).copied().collect();
         let diameter_mm = diameter(&sample);
-        if !(diameter_mm > 0.0) {
+        if diameter_mm.is_nan() || diameter_mm <= 0.0 {
             return Err(input("model", "all points coincide"));
         }
         Ok(Self {
@@ -113,8 +118,7 @@ impl Part {
 
     /// Centroid of the surface points (model frame).
     pub fn centre(&self) -> Point3<f64> {
-        binpick_cloud::centroid(&self.surface.points)
-            .map_or_else(Point3::origin, Point3::from)
+        binpick_cloud::centroid(&self.surface.points).map_or_else(Point3::origin, Point3::from)
     }
 
     /// The canonical pose of `pose` under the part's symmetries.

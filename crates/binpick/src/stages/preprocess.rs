@@ -35,7 +35,8 @@ pub(crate) fn check_units(
             format!(
                 "its extent is {extent:.4} mm, smaller than {} x the {} mm resolution: \
                  the cloud looks like it is in metres (binpick works in millimetres; use --units m or units = \"m\")",
-                cfg.min_extent_resolutions, cfg.resolution()
+                cfg.min_extent_resolutions,
+                cfg.resolution()
             ),
         ));
     }

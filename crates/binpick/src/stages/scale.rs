@@ -74,10 +74,7 @@ pub fn measure_spacing(points: &[Point]) -> Result<Option<Spacing>> {
     }
     // k neighbours within r on a surface sampled at density 1/s^2: k = pi r^2 / s^2.
     let spacing_mm = gap_mm * (std::f64::consts::PI / SPACING_NEIGHBOUR as f64).sqrt();
-    Ok(Some(Spacing {
-        spacing_mm,
-        gap_mm,
-    }))
+    Ok(Some(Spacing { spacing_mm, gap_mm }))
 }
 
 /// `v` rounded onto the 2^(1/16) ladder (exact under scaling by powers of two).
@@ -114,8 +111,8 @@ impl DerivedScale {
         let gap = scan.map_or(resolution_mm, |s| on_ladder(s.gap_mm));
         let wide = resolution_mm.max(gap);
         let v = &params.voting;
-        let sampling_step_mm = (v.sampling_step_diameters * d)
-            .max(v.min_sampling_step_resolutions * resolution_mm);
+        let sampling_step_mm =
+            (v.sampling_step_diameters * d).max(v.min_sampling_step_resolutions * resolution_mm);
         let normal_radius_mm = (v.normal_radius_steps * sampling_step_mm)
             .max(v.min_normal_radius_resolutions * resolution_mm);
         let cell_mm = params.verify.cell_resolutions * resolution_mm;

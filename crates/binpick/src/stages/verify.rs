@@ -75,6 +75,18 @@ pub(crate) fn view_config(scale: &DerivedScale, cfg: &VerifyConfig) -> ViewConfi
     }
 }
 
+/// The preprocessed scene as the engine uses it.
+pub(crate) struct SceneSurface {
+    /// Every preprocessed point (support included) ...
+    pub points: Vec<Point>,
+    /// ... its normal (NaN where undefined) ...
+    pub normals: Vec<[f32; 3]>,
+    /// ... and whether it is support (belt, floor, wall).
+    pub support: Vec<bool>,
+    /// The points that are not support.
+    pub world: Vec<Point>,
+}
+
 /// Everything verification reads, built once per scene.
 pub(crate) struct Verifier<'a> {
     pub grid: RangeGrid,
@@ -96,26 +108,28 @@ pub(crate) struct ThesisScores {
 }
 
 impl<'a> Verifier<'a> {
-    /// `points` is the whole preprocessed scene with its `normals`, `support` flags the
-    /// belt/bin points.
     pub(crate) fn new(
         sensor: Sensor,
-        points: &[Point],
-        normals: &[[f32; 3]],
-        support: &[bool],
-        world: &[Point],
+        scene: &SceneSurface,
         model: &'a VotingModel,
         scale: &'a DerivedScale,
         cfg: &'a VerifyConfig,
     ) -> Result<Self> {
         let view = view_config(scale, cfg);
-        let grid = RangeGrid::new(sensor, &view, points, support, Some(normals))
-            .map_err(matching("view grid"))?;
+        let grid = RangeGrid::new(
+            sensor,
+            &view,
+            &scene.points,
+            &scene.support,
+            Some(&scene.normals),
+        )
+        .map_err(matching("view grid"))?;
         Ok(Self {
             grid,
             view,
-            world: IndexedCloud::new(world).map_err(pcl("scene upload"))?,
-            world_index: NearestIndex::new(world).map_err(|e| input("scene", e.to_string()))?,
+            world: IndexedCloud::new(&scene.world).map_err(pcl("scene upload"))?,
+            world_index: NearestIndex::new(&scene.world)
+                .map_err(|e| input("scene", e.to_string()))?,
             model,
             scale,
             cfg,
@@ -136,7 +150,10 @@ impl<'a> Verifier<'a> {
 
     /// Two ICP passes on the visible surface: coarse (correspondences within two sampling
     /// steps), then fine (within two tolerances). Returns the pose and the last ICP outcome.
-    pub(crate) fn refine(&self, pose: &Isometry3<f64>) -> Result<(Isometry3<f64>, Option<binpick_pcl::IcpOutcome>)> {
+    pub(crate) fn refine(
+        &self,
+        pose: &Isometry3<f64>,
+    ) -> Result<(Isometry3<f64>, Option<binpick_pcl::IcpOutcome>)> {
         let mut pose = *pose;
         let mut last = None;
         let w = self.scale.resolution_mm;
