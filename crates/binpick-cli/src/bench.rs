@@ -10,11 +10,11 @@ use binpick::{Params, PointCloud, Recognition, Recognizer, Timings};
 use binpick_eval::median_p95;
 use serde::Serialize;
 
-use crate::config::{ParamArgs, load, log, write_json};
+use crate::config::{ParamArgs, load_part, load_scene, log, write_json};
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Model cloud.
+    /// Part model: scanned cloud or CAD mesh (as `recognize --model`).
     #[arg(long)]
     pub model: PathBuf,
     /// Scene clouds to time.
@@ -28,11 +28,12 @@ pub struct Args {
     /// Write the measurements as JSON.
     #[arg(long)]
     pub json: Option<PathBuf>,
-    /// `rust`, `reference` or `both`. `both` runs the Rust engine in thesis-strict mode (the
-    /// reference always runs the thesis exactly), checks the detections agree and prints
-    /// reference time / Rust time per scene.
+    /// `rust` (the library, with `--engine`), `reference` (the C++ pipeline) or `both`.
+    /// `both` runs the library's thesis engine thesis-strict (the reference always runs the
+    /// thesis exactly), checks the detections agree and prints reference time / Rust time
+    /// per scene.
     #[arg(long, value_enum, default_value_t = BenchEngine::Rust)]
-    pub engine: BenchEngine,
+    pub pipelines: BenchEngine,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -155,7 +156,7 @@ fn pose_differences(a: &Recognition, b: &Recognition) -> (bool, f64, f64) {
     let mut dt: f64 = 0.0;
     let mut dr: f64 = 0.0;
     for d in &a.detections {
-        if let Some(e) = b.detections.iter().find(|e| e.cluster == d.cluster) {
+        if let Some(e) = b.detections.iter().find(|e| e.found_by == d.found_by) {
             dt = dt.max((d.pose.translation.vector - e.pose.translation.vector).norm());
             dr = dr.max(d.pose.rotation.angle_to(&e.pose.rotation).to_degrees());
         } else {
@@ -167,28 +168,33 @@ fn pose_differences(a: &Recognition, b: &Recognition) -> (bool, f64, f64) {
 
 pub fn run(a: Args) -> Result<()> {
     let mut params = a.params.params()?;
-    if a.engine == BenchEngine::Both && !params.thesis_strict {
+    if a.pipelines == BenchEngine::Both && !params.thesis_strict {
         params.thesis_strict = true;
-        log("--engine both: the Rust engine runs thesis-strict, as the reference does");
+        log(
+            "--pipelines both: the library runs the thesis engine thesis-strict, as the reference does",
+        );
     }
-    let model = load(&a.model, a.params.model_units(&params), "model")?;
-    let recognizer = Recognizer::new(&model, params.clone()).context("cannot prepare the model")?;
-    let prep_ms = recognizer.preparation().as_secs_f64() * 1000.0;
+    let part = load_part(&a.model, a.params.model_units(&params), &params)?;
+    let model = part.cloud.clone();
+    let recognizer =
+        Recognizer::with_part(part, params.clone()).context("cannot prepare the model")?;
+    let mut prep_ms = recognizer.preparation().as_secs_f64() * 1000.0;
     println!(
-        "model preparation (once per model, Rust engine): {prep_ms:.0} ms; {} thread(s); preset {}, algorithm {}",
+        "engine {}; model preparation (once per model): {prep_ms:.0} ms; {} thread(s); preset {}, algorithm {}",
+        params.stages().engine.name(),
         recognizer.threads(),
-        a.params.preset.name(),
+        a.params.preset_name(),
         params.algorithm.number()
     );
     print_header();
     let mut out = BenchOutput {
-        model_preparation_ms: prep_ms,
+        model_preparation_ms: 0.0,
         threads: recognizer.threads(),
         scenes: Vec::new(),
         comparisons: Vec::new(),
     };
     for scene_path in &a.scene {
-        let scene = load(scene_path, params.units, "scene")?;
+        let (scene, seen_from) = load_scene(scene_path, params.units)?;
         let name = scene_path.display().to_string();
         // Times one engine on this scene, prints and stores its row; (first result, median total).
         let mut measure =
@@ -207,14 +213,18 @@ pub fn run(a: Args) -> Result<()> {
                 out.scenes.push(b);
                 (warm, total)
             };
-        let rust = match a.engine {
+        let rust = match a.pipelines {
             BenchEngine::Rust | BenchEngine::Both => Some(measure(
                 "rust",
-                time_runs(a.repeat, || recognizer.recognize(&scene))?,
+                time_runs(a.repeat, || {
+                    recognizer.recognize_seen_from(&scene, seen_from)
+                })?,
             )),
             BenchEngine::Reference => None,
         };
-        let reference = match a.engine {
+        // The scene-voting model is prepared at the first scan of a scale.
+        prep_ms = recognizer.preparation().as_secs_f64() * 1000.0;
+        let reference = match a.pipelines {
             BenchEngine::Reference | BenchEngine::Both => Some(measure(
                 "reference",
                 time_reference(a.repeat, &model, &scene, &params)?,
@@ -233,8 +243,9 @@ pub fn run(a: Args) -> Result<()> {
             });
         }
     }
+    out.model_preparation_ms = prep_ms;
     println!(
-        "(ms, medians of {} runs; * = summed over worker threads, wall time is 'total')",
+        "(ms, medians of {} runs; * = summed over worker threads, wall time is 'total'; model preparation {prep_ms:.0} ms)",
         a.repeat.max(1)
     );
     if !out.comparisons.is_empty() {

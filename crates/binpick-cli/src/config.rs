@@ -5,13 +5,28 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use binpick::{Algorithm, Params, Preset, Units};
 
+/// The engines a command can run.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EngineArg {
+    SceneVoting,
+    Thesis,
+    Reference,
+}
+
 /// Parameter options shared by every command that recognises.
 #[derive(clap::Args, Clone, Debug)]
 pub struct ParamArgs {
-    /// Base configuration: thesis (4.3 defaults), A, B, C1, C2, C3 (conveyor, 5.5.1),
-    /// arm-A, arm-C (robot arm, 5.6.1).
-    #[arg(long, default_value = "thesis")]
-    pub preset: Preset,
+    /// Base configuration. Without one, every length is derived from the model's diameter and
+    /// the scan's point spacing. The thesis's absolute settings: thesis (4.3 defaults), A, B,
+    /// C1, C2, C3 (conveyor, 5.5.1), arm-A, arm-C (robot arm, 5.6.1).
+    #[arg(long)]
+    pub preset: Option<Preset>,
+    /// Which engine finds the parts: scene-voting (default: point-pair voting over the whole
+    /// scene, verified against the sensor's view), thesis (Algorithms 1/2 per cluster), or
+    /// reference (the thesis's Algorithms 1/2 written directly in C++ against PCL; always
+    /// thesis-exact). `--algorithm` and `--thesis-strict` imply thesis.
+    #[arg(long, value_enum)]
+    pub engine: Option<EngineArg>,
     /// TOML file whose keys override the preset (see README "Parameters").
     #[arg(long, value_name = "params.toml")]
     pub config: Option<PathBuf>,
@@ -38,7 +53,7 @@ pub struct ParamArgs {
 impl ParamArgs {
     /// Preset, then the config file, then flags; validated.
     pub fn params(&self) -> Result<Params> {
-        let mut p = self.preset.params();
+        let mut p = self.preset.map_or_else(Params::default, Preset::params);
         if let Some(path) = &self.config {
             let text = std::fs::read_to_string(path)
                 .with_context(|| format!("cannot read config {}", path.display()))?;
@@ -47,6 +62,16 @@ impl ParamArgs {
         }
         if let Some(a) = self.algorithm {
             p.algorithm = a;
+            p.engine = binpick::Engine::Thesis;
+        }
+        match self.engine {
+            Some(EngineArg::SceneVoting) => p.engine = binpick::Engine::SceneVoting,
+            Some(EngineArg::Thesis) => p.engine = binpick::Engine::Thesis,
+            Some(EngineArg::Reference) => {
+                p.engine = binpick::Engine::Thesis;
+                p.thesis_strict = true;
+            }
+            None => {}
         }
         if let Some(u) = self.units {
             p.units = u;
@@ -59,9 +84,20 @@ impl ParamArgs {
         }
         if self.thesis_strict {
             p.thesis_strict = true;
+            p.engine = binpick::Engine::Thesis;
         }
         p.validate()?;
         Ok(p)
+    }
+
+    /// Whether the C++ reference pipeline was asked for.
+    pub fn reference(&self) -> bool {
+        self.engine == Some(EngineArg::Reference)
+    }
+
+    /// The preset's name, or "auto" without one.
+    pub fn preset_name(&self) -> &'static str {
+        self.preset.map_or("auto", |p| p.name())
     }
 
     pub fn model_units(&self, params: &Params) -> Units {
@@ -69,10 +105,41 @@ impl ParamArgs {
     }
 }
 
+/// Loads a scan, converts it to mm and logs what loading did; also returns where its sensor
+/// was (mm), when the file says so (a PCD `VIEWPOINT` other than PCL's default).
+pub fn load_scene(path: &Path, units: Units) -> Result<(binpick::PointCloud, Option<[f64; 3]>)> {
+    let (cloud, report) = binpick::load_cloud(path, units).context("cannot load the scene")?;
+    log_loaded(path, units, "scene", &cloud, &report);
+    let seen_from = binpick::sensor_position(&report, units);
+    if let Some(v) = seen_from {
+        let why = if report.sensor_viewpoint().is_some() {
+            "the file's VIEWPOINT"
+        } else {
+            "an organised cloud, in its camera's frame"
+        };
+        log(&format!(
+            "scene sensor at ({:.0}, {:.0}, {:.0}) mm ({why})",
+            v[0], v[1], v[2]
+        ));
+    }
+    Ok((cloud, seen_from))
+}
+
 /// Loads a cloud, converts it to mm and logs what loading did.
 pub fn load(path: &Path, units: Units, what: &str) -> Result<binpick::PointCloud> {
     let (cloud, report) =
         binpick::load_cloud(path, units).with_context(|| format!("cannot load the {what}"))?;
+    log_loaded(path, units, what, &cloud, &report);
+    Ok(cloud)
+}
+
+fn log_loaded(
+    path: &Path,
+    units: Units,
+    what: &str,
+    cloud: &binpick::PointCloud,
+    report: &binpick_cloud::io::LoadReport,
+) {
     let dropped = if report.non_finite_dropped > 0 {
         format!(", {} NaN points dropped", report.non_finite_dropped)
     } else {
@@ -88,7 +155,32 @@ pub fn load(path: &Path, units: Units, what: &str) -> Result<binpick::PointCloud
         path.display(),
         cloud.len()
     ));
-    Ok(cloud)
+}
+
+/// Loads a part model (cloud or mesh, plus its sidecar), converts it to mm and logs it.
+pub fn load_part(path: &Path, units: Units, params: &Params) -> Result<binpick::Part> {
+    let (part, report) = binpick::load_part(path, units, params)
+        .with_context(|| format!("cannot load the model {}", path.display()))?;
+    let kind = if report.mesh {
+        format!("mesh sampled at {} points", report.points)
+    } else {
+        format!("scan of {} points", report.points)
+    };
+    let seen = report.viewpoint.map_or(String::new(), |(v, from)| {
+        format!(
+            ", scanned from ({:.0}, {:.0}, {:.0}) mm ({from})",
+            v[0], v[1], v[2]
+        )
+    });
+    let sym = report.sidecar.as_ref().map_or(String::new(), |s| {
+        format!(", {} symmetries from {}", report.symmetries, s.display())
+    });
+    log(&format!(
+        "model {}: {kind}, diameter {:.1} mm{seen}{sym}",
+        path.display(),
+        part.size.diameter_mm
+    ));
+    Ok(part)
 }
 
 /// A log line on stderr.

@@ -18,6 +18,10 @@ pub struct Args {
     /// Model to evaluate (a name in models/); needed when the dataset labels several.
     #[arg(long)]
     pub model: Option<String>,
+    /// Which of the model's files recognises: scan (models/<name>.pcd, the scanned top view)
+    /// or mesh (models/<name>.stl, the CAD mesh).
+    #[arg(long, default_value = "scan")]
+    pub model_file: binpick_eval::ModelFile,
     #[command(flatten)]
     pub params: ParamArgs,
     /// Output folder for per-scene JSON, summary.json, summary.csv and params.toml
@@ -57,7 +61,7 @@ pub fn run(a: Args) -> Result<()> {
             many.join(", ")
         ),
     };
-    let preset = a.params.preset.name();
+    let preset = a.params.preset.map_or("auto", |p| p.name());
     let out = a
         .out
         .clone()
@@ -71,26 +75,32 @@ pub fn run(a: Args) -> Result<()> {
     ));
 
     let mut progress: Option<Progress> = None;
-    let run = evaluate_dataset(&dataset, &model, &params, |done, total, last| {
-        let p = progress.get_or_insert_with(|| Progress::new(total, "eval"));
-        let what = match &last.error {
-            Some(e) => format!("{}: ERROR {e}", last.id),
-            None => format!(
-                "{}: {} found, {:.0} ms",
-                last.id,
-                last.score.detections.len(),
-                last.time_ms
-            ),
-        };
-        p.step(done, &what);
-        if let Some(report) = &last.report {
-            // Written as we go, so a long run leaves partial results.
-            let _ = write_json(
-                &out.join("scenes").join(format!("{}.json", last.id)),
-                report,
-            );
-        }
-    })?;
+    let run = evaluate_dataset(
+        &dataset,
+        &model,
+        a.model_file,
+        &params,
+        |done, total, last| {
+            let p = progress.get_or_insert_with(|| Progress::new(total, "eval"));
+            let what = match &last.error {
+                Some(e) => format!("{}: ERROR {e}", last.id),
+                None => format!(
+                    "{}: {} found, {:.0} ms",
+                    last.id,
+                    last.score.detections.len(),
+                    last.time_ms
+                ),
+            };
+            p.step(done, &what);
+            if let Some(report) = &last.report {
+                // Written as we go, so a long run leaves partial results.
+                let _ = write_json(
+                    &out.join("scenes").join(format!("{}.json", last.id)),
+                    report,
+                );
+            }
+        },
+    )?;
     if let Some(p) = &progress {
         p.finish();
     }

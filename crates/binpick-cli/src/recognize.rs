@@ -5,12 +5,13 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use binpick::{RecognitionReport, Recognizer};
 
-use crate::config::{ParamArgs, load, log, write_json, write_params_next_to};
+use crate::config::{ParamArgs, load_part, load_scene, log, write_json, write_params_next_to};
 use crate::table::{print_ranked, summary};
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Model cloud (.pcd or .ply), in the object's frame.
+    /// Part model in its own frame: a scanned cloud (.pcd, .ply without faces) or a CAD mesh
+    /// (.stl, .obj, .ply with faces); symmetries in `<model>.json` beside it (README).
     #[arg(long)]
     pub model: PathBuf,
     /// Scene cloud (.pcd or .ply).
@@ -32,55 +33,47 @@ pub struct Args {
     /// Print only the JSON-equivalent table, no per-cluster report.
     #[arg(long, short)]
     pub quiet: bool,
-    /// Which pipeline recognises: `rust` (binpick's orchestration) or `reference` (the
-    /// thesis's Algorithms 1/2 written directly in C++ against PCL; always runs the thesis
-    /// exactly, as `--thesis-strict`).
-    #[arg(long, value_enum, default_value_t = Engine::Rust)]
-    pub engine: Engine,
-}
-
-/// The two recognition pipelines.
-#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Engine {
-    Rust,
-    Reference,
-}
-
-impl Engine {
-    pub fn name(self) -> &'static str {
-        match self {
-            Engine::Rust => "rust",
-            Engine::Reference => "reference",
-        }
-    }
 }
 
 pub fn run(a: Args) -> Result<()> {
     let params = a.params.params()?;
-    let model = load(&a.model, a.params.model_units(&params), "model")?;
-    let scene = load(&a.scene, params.units, "scene")?;
-    let result = match a.engine {
-        Engine::Rust => {
-            let recognizer =
-                Recognizer::new(&model, params.clone()).context("cannot prepare the model")?;
+    let part = load_part(&a.model, a.params.model_units(&params), &params)?;
+    let (scene, seen_from) = load_scene(&a.scene, params.units)?;
+    let engine = if a.params.reference() {
+        "reference"
+    } else {
+        params.stages().engine.name()
+    };
+    let result = if a.params.reference() {
+        log("reference engine: thesis Algorithms 1/2 in C++ against PCL, one part per cluster");
+        binpick::reference::recognize_reference(&part.cloud, &scene, &params)
+            .context("reference recognition failed")?
+    } else {
+        let recognizer = Recognizer::with_part(part.clone(), params.clone())
+            .context("cannot prepare the model")?;
+        if let Some(m) = recognizer.model() {
             log(&format!(
                 "model prepared in {:.0} ms: {} points, {} keypoints, {} FPFH radii, diameter {:.1} mm; {} thread(s)",
                 recognizer_prep_ms(&recognizer),
-                recognizer.model().cloud.len(),
-                recognizer.model().initial_keypoints.len(),
-                recognizer.model().features.len(),
-                recognizer.model().diameter_mm,
+                m.cloud.len(),
+                m.initial_keypoints.len(),
+                m.features.len(),
+                m.diameter_mm,
                 recognizer.threads()
             ));
-            recognizer.recognize(&scene).context("recognition failed")?
         }
-        Engine::Reference => {
-            log("reference engine: thesis Algorithms 1/2 in C++ against PCL, one part per cluster");
-            binpick::reference::recognize_reference(&model, &scene, &params)
-                .context("reference recognition failed")?
+        let r = recognizer
+            .recognize_seen_from(&scene, seen_from)
+            .context("recognition failed")?;
+        if let Some(s) = &r.scale {
+            log(&format!("derived: {}", s.summary()));
         }
+        r
     };
     log(&summary(&result));
+    if let (Some(v), false) = (&result.voting, a.quiet) {
+        log(&crate::table::voting_summary(v));
+    }
     if !a.quiet {
         for c in &result.clusters {
             log(&format!(
@@ -93,7 +86,7 @@ pub fn run(a: Args) -> Result<()> {
     let mut report = RecognitionReport::new(
         &a.scene.display().to_string(),
         &a.model.display().to_string(),
-        a.engine.name(),
+        engine,
         &params,
         &result,
     );
@@ -103,7 +96,13 @@ pub fn run(a: Args) -> Result<()> {
         let p = write_params_next_to(out, &params)?;
         log(&format!("wrote {} and {}", out.display(), p.display()));
     }
-    write_pictures(&report, &scene, &model, a.png.as_deref(), a.ply.as_deref())
+    write_pictures(
+        &report,
+        &scene,
+        &part.cloud,
+        a.png.as_deref(),
+        a.ply.as_deref(),
+    )
 }
 
 /// PNG and PLY outputs of one result.

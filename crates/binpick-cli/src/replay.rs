@@ -8,7 +8,7 @@ use binpick_eval::median_p95;
 use binpick_eval::replay_scan;
 use serde::Serialize;
 
-use crate::config::{ParamArgs, load, log, write_json, write_params_next_to};
+use crate::config::{ParamArgs, load_part, log, write_json, write_params_next_to};
 use crate::progress::Progress;
 
 #[derive(clap::Args)]
@@ -16,7 +16,7 @@ pub struct Args {
     /// Scan files (.pcd or .ply).
     #[arg(required = true)]
     pub scans: Vec<PathBuf>,
-    /// Model cloud.
+    /// Part model: scanned cloud or CAD mesh (as `recognize --model`).
     #[arg(long)]
     pub model: PathBuf,
     #[command(flatten)]
@@ -42,8 +42,9 @@ struct Summary<'a> {
 
 pub fn run(a: Args) -> Result<()> {
     let params = a.params.params()?;
-    let model = load(&a.model, a.params.model_units(&params), "model")?;
-    let recognizer = Recognizer::new(&model, params.clone()).context("cannot prepare the model")?;
+    let part = load_part(&a.model, a.params.model_units(&params), &params)?;
+    let recognizer =
+        Recognizer::with_part(part, params.clone()).context("cannot prepare the model")?;
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("cannot create {}", a.out.display()))?;
     let model_name = a.model.display().to_string();

@@ -1,6 +1,6 @@
 //! The human-readable ranked table printed by `recognize` and `replay`.
 
-use binpick::Recognition;
+use binpick::{FoundBy, Recognition};
 
 /// Roll, pitch, yaw (XYZ fixed axes), degrees.
 fn rpy_deg(p: &nalgebra::Isometry3<f64>) -> [f64; 3] {
@@ -8,10 +8,16 @@ fn rpy_deg(p: &nalgebra::Isometry3<f64>) -> [f64; 3] {
     [r.to_degrees(), pi.to_degrees(), y.to_degrees()]
 }
 
+/// Columns: rank; `vis %` the estimated visible fraction (scene-voting) or `-`; `final %` the
+/// percent of outliers (thesis 3.1.2); `init mm^2` the Euclidean score of the initial pose
+/// (3.1.1); position; roll/pitch/yaw (rotations about the fixed x, y, z axes, applied in
+/// that order, degrees); `found by` (votes of the pose cluster, or cluster / FPFH radius /
+/// RANSAC threshold of the thesis engine); why it ranks there.
 pub fn print_ranked(r: &Recognition) {
     println!(
-        "{:>4}  {:>8}  {:>10}  {:>9} {:>9} {:>9}  {:>7} {:>7} {:>7}  {:>7}  {:>6}  {:>5}  why",
+        "{:>4}  {:>6}  {:>8}  {:>10}  {:>9} {:>9} {:>9}  {:>7} {:>7} {:>7}  {:<22}  why",
         "rank",
+        "vis %",
         "final %",
         "init mm^2",
         "x mm",
@@ -20,19 +26,30 @@ pub fn print_ranked(r: &Recognition) {
         "roll",
         "pitch",
         "yaw",
-        "cluster",
-        "radius",
-        "thr"
+        "found by"
     );
     for d in &r.detections {
         let t = d.pose.translation.vector;
         let [ro, pi, ya] = rpy_deg(&d.pose);
-        let radius = d
-            .fpfh_radius_mm
-            .map_or("merged".to_string(), |x| format!("{x:.0}"));
+        let vis = d
+            .view
+            .map_or("-".to_string(), |v| format!("{:.1}", 100.0 * v.visibility));
+        let found = match &d.found_by {
+            FoundBy::Voting { votes, .. } => format!("{votes} votes"),
+            FoundBy::Cluster {
+                cluster,
+                fpfh_radius_mm,
+                sac_threshold_mm,
+                ..
+            } => format!(
+                "cluster {cluster} r {} t {sac_threshold_mm:.1}",
+                fpfh_radius_mm.map_or("merged".to_string(), |x| format!("{x:.0}"))
+            ),
+        };
         println!(
-            "{:>4}  {:>8.2}  {:>10.2}  {:>9.2} {:>9.2} {:>9.2}  {:>7.1} {:>7.1} {:>7.1}  {:>7}  {:>6}  {:>5.1}  {}",
+            "{:>4}  {:>6}  {:>8.2}  {:>10.2}  {:>9.2} {:>9.2} {:>9.2}  {:>7.1} {:>7.1} {:>7.1}  {:<22}  {}",
             d.rank,
+            vis,
             d.final_score,
             d.initial_score,
             t.x,
@@ -41,12 +58,39 @@ pub fn print_ranked(r: &Recognition) {
             ro,
             pi,
             ya,
-            d.cluster,
-            radius,
-            d.sac_threshold_mm,
+            found,
             d.rank_reason
         );
     }
+}
+
+/// What the scene-voting engine did, in one line, and why the best refused candidate was
+/// refused (the parameter to look at when nothing is found).
+pub fn voting_summary(v: &binpick::VotingReport) -> String {
+    let refused = v.best_refused.as_ref().map_or(String::new(), |b| {
+        format!(
+            "; best refused: visibility {:.0} %, free space {:.1} %, {} cells: {}",
+            100.0 * b.visibility,
+            100.0 * b.free_space,
+            b.explained_cells,
+            b.reason
+        )
+    });
+    format!(
+        "{}: {} samples, {} votes, {} hypotheses, {} candidates verified, {} accepted; refused: {} too little surface, {} low visibility, {} free space, {} no outline, {} poor fit, {} repeats{refused}",
+        v.sensor,
+        v.scene_samples,
+        v.votes,
+        v.hypotheses,
+        v.candidates,
+        v.accepted,
+        v.rejected_too_little_surface,
+        v.rejected_low_visibility,
+        v.rejected_free_space,
+        v.rejected_no_outline,
+        v.rejected_poor_fit,
+        v.rejected_explained
+    )
 }
 
 pub fn summary(r: &Recognition) -> String {

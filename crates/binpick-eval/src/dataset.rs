@@ -65,11 +65,37 @@ pub fn dataset_models(dataset: &Dataset) -> Result<Vec<String>> {
     Ok(names)
 }
 
-/// Evaluates `model` on every ground-truth file of `dataset` naming it. `progress(done,
-/// total, last)` is called after each scene.
+/// Which of a dataset model's files recognises.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ModelFile {
+    /// `models/<name>.pcd`: the scanned top view.
+    #[default]
+    Scan,
+    /// `models/<name>.stl`: the CAD mesh.
+    Mesh,
+}
+
+impl std::str::FromStr for ModelFile {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "scan" => Ok(ModelFile::Scan),
+            "mesh" => Ok(ModelFile::Mesh),
+            other => Err(format!(
+                "unknown model file {other:?}: expected scan or mesh"
+            )),
+        }
+    }
+}
+
+/// Evaluates `model` on every ground-truth file of `dataset` naming it, recognising with the
+/// model's `file`. Poses are scored on the scanned model's points whichever file recognises.
+/// `progress(done, total, last)` is called after each scene.
 pub fn evaluate_dataset(
     dataset: &Dataset,
     model: &str,
+    file: ModelFile,
     params: &Params,
     mut progress: impl FnMut(usize, usize, &SceneResult),
 ) -> Result<EvalRun> {
@@ -93,7 +119,12 @@ pub fn evaluate_dataset(
     }
     let info = ModelInfo::load(&dataset.model_info_path(model))?;
     let (model_cloud, _) = load_cloud(&dataset.model_cloud_path(model), Units::Millimetres)?;
-    let recognizer = Recognizer::new(&model_cloud, params.clone())?;
+    let model_path = match file {
+        ModelFile::Scan => dataset.model_cloud_path(model),
+        ModelFile::Mesh => dataset.model_mesh_path(model),
+    };
+    let (part, _) = binpick::load_part(&model_path, Units::Millimetres, params)?;
+    let recognizer = Recognizer::with_part(part, params.clone())?;
     let points: Vec<Point3<f64>> =
         binpick_cloud::strided_points(&model_cloud.points, SCORING_POINTS);
     let symmetries: Vec<Isometry3<f64>> = info
@@ -164,8 +195,9 @@ fn evaluate_scene(
     params: &Params,
     model: &str,
 ) -> Result<(RecognitionReport, SceneScore)> {
-    let (scene, _) = load_cloud(scene_path, gt.units)?;
-    let recognition = recognizer.recognize(&scene)?;
+    let (scene, loaded) = load_cloud(scene_path, gt.units)?;
+    let seen_from = binpick::sensor_position(&loaded, gt.units);
+    let recognition = recognizer.recognize_seen_from(&scene, seen_from)?;
     let truth: Vec<TruthInstance> = gt
         .instances
         .iter()
@@ -192,7 +224,7 @@ fn evaluate_scene(
     let report = RecognitionReport::new(
         &scene_path.display().to_string(),
         model,
-        "rust",
+        params.stages().engine.name(),
         params,
         &recognition,
     );
@@ -219,12 +251,13 @@ pub fn replay_scan(
     units: Units,
 ) -> ReplayResult {
     let run = || -> Result<RecognitionReport> {
-        let (scene, _) = load_cloud(scan, units)?;
-        let r = recognizer.recognize(&scene)?;
+        let (scene, loaded) = load_cloud(scan, units)?;
+        let seen_from = binpick::sensor_position(&loaded, units);
+        let r = recognizer.recognize_seen_from(&scene, seen_from)?;
         Ok(RecognitionReport::new(
             &scan.display().to_string(),
             model_name,
-            "rust",
+            recognizer.params().stages().engine.name(),
             recognizer.params(),
             &r,
         ))

@@ -9,7 +9,7 @@ pub mod stats;
 pub mod thesis;
 
 pub use dataset::{
-    EvalRun, ReplayResult, SceneResult, dataset_models, evaluate_dataset, replay_scan,
+    EvalRun, ModelFile, ReplayResult, SceneResult, dataset_models, evaluate_dataset, replay_scan,
 };
 pub use score::{
     DEFAULT_MATCH_FRACTION, DetectionVerdict, SceneScore, ThesisPercents, ThesisTable,

@@ -24,7 +24,8 @@ use binpick_cloud::dataset::{GroundTruth, RevolutionAxis, write_json};
 
 use crate::depth::DepthCameraConfig;
 use crate::generate::{
-    build_pile_in, io_err, is_empty_or_synth_dir, prepare_out_dir, write_cloud, write_stl,
+    build_pile_in, io_err, is_empty_or_synth_dir, prepare_out_dir, write_cloud_seen_from,
+    write_model_cloud, write_stl,
 };
 use crate::models::{Model, ModelLibrary, PICKABLE_FRACTION, ground_truth_alone};
 use crate::parts::PartKind;
@@ -583,9 +584,22 @@ fn run_scene(
     let scene = make_set_scene(lib, set_models, set, seed, index)?;
     let t0 = Instant::now();
     let id = &scene.id;
-    write_cloud(
+    // A depth camera's scan records where the camera was; a line scanner's keeps PCL's
+    // default (its rays are parallel along the sweep: "above" is the better description).
+    let viewpoint = match &set.sensor {
+        crate::sensor::Sensor::DepthCamera(_) => {
+            let v = set.sensor.viewpoint();
+            binpick_cloud::io::Viewpoint {
+                position: v.position_mm,
+                orientation_wxyz: v.orientation_wxyz,
+            }
+        }
+        crate::sensor::Sensor::LaserLine(_) => binpick_cloud::io::Viewpoint::default(),
+    };
+    write_cloud_seen_from(
         &root.join("scenes").join(format!("{id}.pcd")),
         &scene.scan.cloud,
+        &viewpoint,
     )?;
     let mut gt_ids = Vec::new();
     let mut pickable = BTreeMap::new();
@@ -671,7 +685,7 @@ fn drop_area(
 fn write_set_models(root: &Path, models: &[&Model]) -> Result<(), SynthError> {
     let dir = root.join("models");
     for m in models {
-        write_cloud(&dir.join(format!("{}.pcd", m.name)), &m.cloud)?;
+        write_model_cloud(&dir.join(format!("{}.pcd", m.name)), m)?;
         write_stl(&dir.join(format!("{}.stl", m.name)), &m.mesh)?;
         write_json(&dir.join(format!("{}.json", m.name)), &m.info())?;
     }

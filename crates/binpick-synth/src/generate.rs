@@ -299,11 +299,36 @@ pub(crate) fn io_err(path: &Path) -> impl Fn(std::io::Error) -> SynthError + '_ 
 
 /// Writes a cloud as binary PCD, creating the folder.
 pub fn write_cloud(path: &Path, cloud: &PointCloud) -> Result<(), SynthError> {
+    write_cloud_seen_from(path, cloud, &binpick_cloud::io::Viewpoint::default())
+}
+
+/// Writes a binary PCD whose `VIEWPOINT` is `viewpoint` (mm), creating the folder.
+pub fn write_cloud_seen_from(
+    path: &Path,
+    cloud: &PointCloud,
+    viewpoint: &binpick_cloud::io::Viewpoint,
+) -> Result<(), SynthError> {
     if let Some(parent) = path.parent() {
         std::fs::create_dir_all(parent).map_err(io_err(parent))?;
     }
-    binpick_cloud::io::write_pcd(path, cloud)?;
+    binpick_cloud::io::write_pcd_with_viewpoint(
+        path,
+        cloud,
+        binpick_cloud::io::PcdEncoding::Binary,
+        None,
+        viewpoint,
+    )?;
     Ok(())
+}
+
+/// Writes a model's cloud with its scanner's position in the `VIEWPOINT` line (so readers
+/// know which side of the part the scan shows).
+pub fn write_model_cloud(path: &Path, m: &crate::models::Model) -> Result<(), SynthError> {
+    let viewpoint = binpick_cloud::io::Viewpoint {
+        position: m.viewpoint_mm,
+        orientation_wxyz: [1.0, 0.0, 0.0, 0.0],
+    };
+    write_cloud_seen_from(path, &m.cloud, &viewpoint)
 }
 
 /// Writes a mesh as binary STL (mm), creating the folder.
@@ -485,10 +510,7 @@ fn run_job(
 /// Writes the models (`models/<name>.pcd` and `.json`).
 pub fn write_models(root: &Path, models: &ModelLibrary) -> Result<(), SynthError> {
     for m in &models.models {
-        write_cloud(
-            &root.join("models").join(format!("{}.pcd", m.name)),
-            &m.cloud,
-        )?;
+        write_model_cloud(&root.join("models").join(format!("{}.pcd", m.name)), m)?;
         write_json(
             &root.join("models").join(format!("{}.json", m.name)),
             &m.info(),

@@ -68,7 +68,7 @@ pub use sensor::{Sensor, Viewpoint};
 use std::path::PathBuf;
 
 /// Version of the generator's output; bump when the same seed would give different files.
-pub const GENERATOR_VERSION: &str = concat!(env!("CARGO_PKG_VERSION"), "+synth.1");
+pub const GENERATOR_VERSION: &str = concat!(env!("CARGO_PKG_VERSION"), "+synth.2");
 
 /// Error generating a dataset.
 #[derive(Debug, thiserror::Error)]

@@ -54,6 +54,9 @@ pub struct Model {
     pub diameter: f64,
     /// The exact mesh of what the model shows (the part, or its cut portion), part frame, mm.
     pub mesh: Mesh,
+    /// Where the model scanner's camera was, part frame, mm (the PCD's `VIEWPOINT`): the
+    /// side of the part the scan shows.
+    pub viewpoint_mm: [f64; 3],
 }
 
 impl Model {
@@ -130,6 +133,9 @@ impl ModelLibrary {
         for &kind in kinds {
             let pose = canonical[kind.index()];
             let full = scan_isolated(&parts, kind, &pose)?;
+            let camera = nalgebra::Point3::new(0.0, 0.0, ScannerConfig::model_scan().camera_height);
+            let seen_from = pose.inverse() * camera;
+            let viewpoint_mm = [seen_from.x, seen_from.y, seen_from.z];
             let part = parts.get(kind);
             // The thesis's models keep the diameter of their cloud (the thesis tables were
             // measured with it); the other families use their exact mesh, as BOP does.
@@ -147,6 +153,7 @@ impl ModelLibrary {
                 revolution_axis: part.revolution_axis,
                 cloud: full.clone(),
                 mesh: part.mesh.clone(),
+                viewpoint_mm,
             });
             if let (true, Some(cut_mesh)) = (with_cuts, part.cut_mesh()?) {
                 let cut = PointCloud::new(
@@ -165,6 +172,7 @@ impl ModelLibrary {
                     revolution_axis: None,
                     cloud: cut,
                     mesh: cut_mesh,
+                    viewpoint_mm,
                 });
             }
         }

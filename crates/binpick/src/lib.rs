@@ -29,6 +29,7 @@ mod deadline;
 mod engines;
 pub mod error;
 pub mod params;
+pub mod part_file;
 pub mod pose;
 pub mod recognizer;
 #[cfg(feature = "reference")]
@@ -38,20 +39,36 @@ mod stages;
 pub mod validate;
 
 pub use binpick_cloud::{Point, PointCloud, Units};
+pub use binpick_match::Symmetries;
 pub use error::{Error, Result};
 pub use params::{
-    Algorithm, ClusteringConfig, ConsensusConfig, FeatureConfig, FeatureSurface, IcpConfig,
+    Algorithm, ClusteringConfig, ConsensusConfig, Engine, FeatureConfig, FeatureSurface, IcpConfig,
     ParamError, Params, PileSearchConfig, PreprocessConfig, Preset, RankingConfig,
-    RegionOfInterest, RuntimeConfig, SupportRemoval, ValidationConfig,
+    RegionOfInterest, RuntimeConfig, SensorConfig, SupportRemoval, ValidationConfig, VerifyConfig,
+    VotingConfig,
 };
+pub use part_file::{PartLoadReport, load_part};
 pub use recognizer::Recognizer;
 pub use result::{
-    ClusterReport, Detection, IcpReport, PreprocessReport, Recognition, RecognitionReport,
-    RemovedPlane, Timings,
+    ClusterReport, Detection, FoundBy, IcpReport, PreprocessReport, Recognition, RecognitionReport,
+    RemovedPlane, Timings, ViewCheck,
 };
+pub use result::{DerivedScale, VotingReport};
 pub use stages::model::PreparedModel;
+pub use stages::part::{Part, PartSource};
+pub use stages::scale::{PartSize, Spacing};
 
 use std::path::Path;
+
+/// Where the sensor that captured a cloud was, in mm, as far as its file says: the PCD
+/// `VIEWPOINT` when it is not PCL's default, else the origin for an organised cloud (PCL
+/// writes depth images in their camera's frame); None when the file does not say.
+pub fn sensor_position(report: &binpick_cloud::io::LoadReport, units: Units) -> Option<[f64; 3]> {
+    match report.sensor_viewpoint() {
+        Some(v) => Some(v.scaled(f64::from(units.to_mm())).position),
+        None => (report.height > 1).then_some([0.0; 3]),
+    }
+}
 
 /// Reads a PCD or PLY cloud and converts it to millimetres from `units`.
 pub fn load_cloud(

@@ -30,8 +30,8 @@ use crate::deadline::ms;
 use crate::error::{Error, Result, input, pcl};
 use crate::params::{Algorithm, FeatureSurface, Params};
 use crate::result::{
-    ClusterReport, Detection, IcpReport, PreprocessReport, Recognition, RemovedPlane, SearchStop,
-    Timings,
+    ClusterReport, Detection, FoundBy, IcpReport, PreprocessReport, Recognition, RemovedPlane,
+    SearchStop, Timings,
 };
 use crate::stages::preprocess::check_units;
 use crate::stages::rank::{height_mm, rank_detections};
@@ -122,12 +122,12 @@ pub fn reference_params(p: &Params) -> ReferenceParams {
     let (cl, f, c, icp) = (&p.clustering, &p.features, &p.consensus, &p.icp);
     ReferenceParams {
         algorithm: p.algorithm.number(),
-        resolution: pre.resolution_mm,
+        resolution: pre.resolution(),
         roi_enabled: roi.is_some(),
         roi_min: roi.map_or([0.0; 3], |r| r.min_mm),
         roi_max: roi.map_or([0.0; 3], |r| r.max_mm),
         support_enabled: pre.support.enabled,
-        support_distance: pre.support.distance_mm,
+        support_distance: pre.support.distance(pre.resolution()),
         support_max_planes: pre.support.max_planes,
         support_min_points_factor: pre.support.min_points_factor,
         support_ransac_iterations: pre.support.ransac_iterations,
@@ -182,11 +182,14 @@ fn convert(r: ReferenceResult, p: &Params) -> Result<ReferenceRun> {
             initial_score: d.initial_score,
             final_score: d.final_score,
             score_before_icp: d.score_before_icp,
-            cluster: d.cluster as usize,
-            cluster_round: 0,
-            fpfh_radius_mm,
-            sac_threshold_mm: d.sac_threshold,
-            sac_inliers: d.sac_inliers as usize,
+            found_by: FoundBy::Cluster {
+                cluster: d.cluster as usize,
+                round: 0,
+                fpfh_radius_mm,
+                sac_threshold_mm: d.sac_threshold,
+                sac_inliers: d.sac_inliers as usize,
+            },
+            view: None,
             icp: IcpReport {
                 converged: d.icp_converged,
                 iterations: d.icp_iterations,
@@ -249,6 +252,8 @@ fn convert(r: ReferenceResult, p: &Params) -> Result<ReferenceRun> {
                 .collect(),
             remaining: r.remaining as usize,
         },
+        scale: None,
+        voting: None,
         clusters,
         duplicates_suppressed: 0,
         timings: Timings {

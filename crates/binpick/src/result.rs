@@ -49,20 +49,82 @@ pub struct Detection {
     pub final_score: f64,
     /// Percent of outliers before ICP.
     pub score_before_icp: f64,
-    /// Index of the Euclidean cluster it came from (clusters ordered by first point index).
-    pub cluster: usize,
-    /// 0 for the first part found in a cluster, 1 for the next touching part, ...
-    pub cluster_round: usize,
-    /// FPFH radius that won the initial alignment (None with Algorithm 2), mm.
-    pub fpfh_radius_mm: Option<f64>,
-    /// RANSAC threshold that won, mm.
-    pub sac_threshold_mm: f64,
-    pub sac_inliers: usize,
+    /// How the engine found it.
+    pub found_by: FoundBy,
+    /// The scene-voting engine's verification against the sensor's view (None from the
+    /// thesis engine).
+    pub view: Option<ViewCheck>,
     pub icp: IcpReport,
     /// Height of the placed model's centroid along `up`, mm.
     pub height_mm: f64,
     /// Why it ranks where it does.
     pub rank_reason: String,
+}
+
+/// How an engine found a detection.
+#[derive(Clone, Debug, PartialEq)]
+pub enum FoundBy {
+    /// The thesis engine: Algorithm 1/2 in a Euclidean cluster.
+    Cluster {
+        /// Index of the Euclidean cluster (clusters ordered by first point index).
+        cluster: usize,
+        /// 0 for the first part found in a cluster, 1 for the next touching part, ...
+        round: usize,
+        /// FPFH radius that won the initial alignment (None with Algorithm 2), mm.
+        fpfh_radius_mm: Option<f64>,
+        /// RANSAC threshold that won, mm.
+        sac_threshold_mm: f64,
+        sac_inliers: usize,
+    },
+    /// The scene-voting engine: a pose cluster of point-pair votes.
+    Voting {
+        /// Summed votes of the pose cluster.
+        votes: u32,
+        /// Index of the hypothesis (strongest first).
+        hypothesis: usize,
+    },
+}
+
+/// A hypothesis judged against the sensor's view, as shares of the surface the sensor would
+/// see of the part alone in that pose (grid cells of the view).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ViewCheck {
+    /// Share confirmed by the scene: the estimated visible fraction.
+    pub visibility: f64,
+    /// Share the sensor saw through (a surface behind the model): contradictions.
+    pub free_space: f64,
+    /// Share hidden by something other than the belt or bin (a part lying on it).
+    pub covered: f64,
+    /// Share with no measurement at all (shadow or absent surface).
+    pub missing: f64,
+    /// Share of its outline the scene's surface carries on past (a pose laid across other
+    /// surfaces rather than on a part).
+    #[serde(default)]
+    pub continued: f64,
+    /// Mean fit weight of the confirmed surface (1 = the scene lies exactly on the model).
+    #[serde(default)]
+    pub fit: f64,
+    /// Cells the model covers as the sensor would see it alone.
+    pub visible_cells: u32,
+}
+
+impl Detection {
+    /// The thesis engine's cluster, if it came from one.
+    pub fn cluster(&self) -> Option<usize> {
+        match self.found_by {
+            FoundBy::Cluster { cluster, .. } => Some(cluster),
+            FoundBy::Voting { .. } => None,
+        }
+    }
+
+    /// Order among detections of one engine when everything else ties: cluster and round,
+    /// or hypothesis index.
+    pub(crate) fn found_order(&self) -> (usize, usize) {
+        match self.found_by {
+            FoundBy::Cluster { cluster, round, .. } => (cluster, round),
+            FoundBy::Voting { hypothesis, .. } => (hypothesis, 0),
+        }
+    }
 }
 
 /// The JSON record: poses as 16 numbers, row-major, plus the translation and quaternion of
@@ -80,11 +142,28 @@ impl Serialize for Detection {
         r.serialize_field("initial_score", &self.initial_score)?;
         r.serialize_field("final_score", &self.final_score)?;
         r.serialize_field("score_before_icp", &self.score_before_icp)?;
-        r.serialize_field("cluster", &self.cluster)?;
-        r.serialize_field("cluster_round", &self.cluster_round)?;
-        r.serialize_field("fpfh_radius_mm", &self.fpfh_radius_mm)?;
-        r.serialize_field("sac_threshold_mm", &self.sac_threshold_mm)?;
-        r.serialize_field("sac_inliers", &self.sac_inliers)?;
+        match &self.found_by {
+            FoundBy::Cluster {
+                cluster,
+                round,
+                fpfh_radius_mm,
+                sac_threshold_mm,
+                sac_inliers,
+            } => {
+                r.serialize_field("cluster", cluster)?;
+                r.serialize_field("cluster_round", round)?;
+                r.serialize_field("fpfh_radius_mm", fpfh_radius_mm)?;
+                r.serialize_field("sac_threshold_mm", sac_threshold_mm)?;
+                r.serialize_field("sac_inliers", sac_inliers)?;
+            }
+            FoundBy::Voting { votes, hypothesis } => {
+                r.serialize_field("votes", votes)?;
+                r.serialize_field("hypothesis", hypothesis)?;
+            }
+        }
+        if let Some(v) = &self.view {
+            r.serialize_field("view", v)?;
+        }
         r.serialize_field("icp", &self.icp)?;
         r.serialize_field("height_mm", &self.height_mm)?;
         r.serialize_field("rank_reason", &self.rank_reason)?;
@@ -102,11 +181,22 @@ struct DetectionJson {
     initial_score: f64,
     final_score: f64,
     score_before_icp: f64,
-    cluster: usize,
-    cluster_round: usize,
+    #[serde(default)]
+    cluster: Option<usize>,
+    #[serde(default)]
+    cluster_round: Option<usize>,
+    #[serde(default)]
     fpfh_radius_mm: Option<f64>,
-    sac_threshold_mm: f64,
-    sac_inliers: usize,
+    #[serde(default)]
+    sac_threshold_mm: Option<f64>,
+    #[serde(default)]
+    sac_inliers: Option<usize>,
+    #[serde(default)]
+    votes: Option<u32>,
+    #[serde(default)]
+    hypothesis: Option<usize>,
+    #[serde(default)]
+    view: Option<ViewCheck>,
     icp: IcpReport,
     height_mm: f64,
     rank_reason: String,
@@ -122,6 +212,24 @@ impl TryFrom<DetectionJson> for Detection {
             Some(m) => pose_from_row_major(&m).map_err(|e| format!("initial_pose: {e}"))?,
             None => pose,
         };
+        let found_by = match (d.votes, d.cluster) {
+            (Some(votes), _) => FoundBy::Voting {
+                votes,
+                hypothesis: d.hypothesis.unwrap_or(0),
+            },
+            (None, Some(cluster)) => FoundBy::Cluster {
+                cluster,
+                round: d.cluster_round.unwrap_or(0),
+                fpfh_radius_mm: d.fpfh_radius_mm,
+                sac_threshold_mm: d.sac_threshold_mm.unwrap_or(f64::NAN),
+                sac_inliers: d.sac_inliers.unwrap_or(0),
+            },
+            (None, None) => {
+                return Err(
+                    "detection has neither `votes` nor `cluster`: which engine found it?".into(),
+                );
+            }
+        };
         Ok(Self {
             rank: d.rank,
             pose,
@@ -129,11 +237,8 @@ impl TryFrom<DetectionJson> for Detection {
             initial_score: d.initial_score,
             final_score: d.final_score,
             score_before_icp: d.score_before_icp,
-            cluster: d.cluster,
-            cluster_round: d.cluster_round,
-            fpfh_radius_mm: d.fpfh_radius_mm,
-            sac_threshold_mm: d.sac_threshold_mm,
-            sac_inliers: d.sac_inliers,
+            found_by,
+            view: d.view,
             icp: d.icp,
             height_mm: d.height_mm,
             rank_reason: d.rank_reason,
@@ -245,6 +350,27 @@ pub struct Timings {
     pub total_ms: f64,
 }
 
+/// Every value derived for one scan, recorded in each result.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DerivedScale {
+    /// Measured on the model.
+    pub model_diameter_mm: f64,
+    pub part_view_area_mm2: f64,
+    /// Measured on the scan (None when the resolution was given).
+    pub scan_spacing_mm: Option<f64>,
+    pub scan_gap_mm: Option<f64>,
+    /// Derived.
+    pub resolution_mm: f64,
+    pub connect_mm: f64,
+    pub support_distance_mm: f64,
+    pub sampling_step_mm: f64,
+    pub normal_radius_mm: f64,
+    pub cell_mm: f64,
+    pub tolerance_mm: f64,
+    /// Points one part's visible surface holds at the working resolution.
+    pub part_points: f64,
+}
+
 /// One removed supporting plane.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RemovedPlane {
@@ -267,12 +393,71 @@ pub struct PreprocessReport {
     pub remaining: usize,
 }
 
+/// What the scene-voting engine did, for diagnostics.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct VotingReport {
+    /// The sensor the view was built for ("camera at (x, y, z) mm" or "above along (x, y, z)").
+    pub sensor: String,
+    /// Scene samples with a normal (they vote).
+    pub scene_samples: usize,
+    /// Votes cast (peaks of all reference points).
+    pub votes: usize,
+    /// Pose clusters verified.
+    pub hypotheses: usize,
+    /// Candidates verified (hypotheses plus their near-symmetry variants).
+    pub candidates: usize,
+    /// Candidates taken as parts.
+    pub accepted: usize,
+    /// Candidates refused: too little confirmed surface, too little of the visible surface
+    /// confirmed, too much free space, or surface already explained by a taken part.
+    pub rejected_too_little_surface: usize,
+    pub rejected_low_visibility: usize,
+    pub rejected_free_space: usize,
+    #[serde(default)]
+    pub rejected_no_outline: usize,
+    #[serde(default)]
+    pub rejected_poor_fit: usize,
+    pub rejected_explained: usize,
+    /// The best refused candidate that was not a repeat of a taken part, when there is one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub best_refused: Option<RefusedCandidate>,
+    /// Every verified candidate (with `report_candidates`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub candidates_detail: Vec<CandidateRecord>,
+}
+
+/// One verified candidate (`report_candidates`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CandidateRecord {
+    pub hypothesis: usize,
+    pub votes: u32,
+    /// Row-major 4x4, model -> scene, after refinement.
+    pub pose: RowMajor4x4,
+    pub view: ViewCheck,
+    pub explained_cells: u32,
+    /// "taken", or why it was refused.
+    pub verdict: String,
+}
+
+/// A refused candidate's figures and why it was refused.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RefusedCandidate {
+    pub visibility: f64,
+    pub free_space: f64,
+    pub explained_cells: u32,
+    pub reason: String,
+}
+
 /// The answer for one scene.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Recognition {
     /// Accepted detections, ranked: `detections[0]` is the one to pick.
     pub detections: Vec<Detection>,
     pub preprocess: PreprocessReport,
+    /// Values derived for this scan (None when every length was given).
+    pub scale: Option<DerivedScale>,
+    /// Scene-voting engine diagnostics (None with the thesis engine).
+    pub voting: Option<VotingReport>,
     pub clusters: Vec<ClusterReport>,
     /// Detections dropped because a better one explains the same instance.
     pub duplicates_suppressed: usize,
@@ -285,6 +470,8 @@ impl Recognition {
         Self {
             detections: Vec::new(),
             preprocess,
+            scale: None,
+            voting: None,
             clusters: Vec::new(),
             duplicates_suppressed: 0,
             timings,
@@ -309,6 +496,11 @@ pub struct RecognitionReport {
     pub params: Params,
     pub detections: Vec<Detection>,
     pub preprocess: PreprocessReport,
+    /// Values derived from the model and this scan.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scale: Option<DerivedScale>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub voting: Option<VotingReport>,
     pub clusters: Vec<ClusterReport>,
     pub duplicates_suppressed: usize,
     pub timings_ms: Timings,
@@ -326,6 +518,8 @@ impl RecognitionReport {
             params: params.clone(),
             detections: r.detections.clone(),
             preprocess: r.preprocess.clone(),
+            scale: r.scale,
+            voting: r.voting.clone(),
             clusters: r.clusters.clone(),
             duplicates_suppressed: r.duplicates_suppressed,
             timings_ms: r.timings.clone(),
@@ -350,11 +544,14 @@ mod tests {
             initial_score: 2.5,
             final_score: 1.0,
             score_before_icp: 3.0,
-            cluster: 4,
-            cluster_round: 0,
-            fpfh_radius_mm: Some(10.0),
-            sac_threshold_mm: 3.0,
-            sac_inliers: 40,
+            found_by: FoundBy::Cluster {
+                cluster: 4,
+                round: 0,
+                fpfh_radius_mm: Some(10.0),
+                sac_threshold_mm: 3.0,
+                sac_inliers: 40,
+            },
+            view: None,
             icp: IcpReport {
                 converged: true,
                 iterations: 7,

@@ -5,12 +5,56 @@
 use std::path::PathBuf;
 
 use binpick::validate::NearestIndex;
-use binpick::{Params, Recognizer, Units, load_cloud};
+use binpick::{
+    Engine, Params, PointCloud, Recognizer, Units, load_cloud, load_part, sensor_position,
+};
+use nalgebra::Isometry3;
 
 fn data(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("../../data/pcl")
         .join(name)
+}
+
+/// Share of `model` points, placed by `pose`, within 8 mm of the carton's own points.
+fn share_on_carton(crop: &PointCloud, model: &[[f32; 3]], pose: &Isometry3<f64>) -> f64 {
+    let crop_index = NearestIndex::new(&crop.points).unwrap();
+    let on = model
+        .iter()
+        .map(|p| binpick_cloud::transform_point(pose, p))
+        .filter(|p| crop_index.nearest(p).1 < 64.0)
+        .count();
+    on as f64 / model.len() as f64
+}
+
+/// Issue 11: with defaults (only the units given), the scene-voting engine finds the carton,
+/// on the carton's own points, and nothing else.
+#[test]
+fn defaults_find_the_milk_carton() {
+    let params = Params {
+        units: Units::Metres,
+        ..Params::default()
+    };
+    assert_eq!(params.engine, Engine::SceneVoting);
+    let (part, _) = load_part(&data("milk_model.pcd"), params.units, &params).unwrap();
+    let (scene, report) =
+        load_cloud(&data("milk_cartoon_all_small_clorox.pcd"), params.units).unwrap();
+    let (crop, _) = load_cloud(&data("milk_scene_crop.pcd"), params.units).unwrap();
+    let seen_from = sensor_position(&report, params.units);
+    assert_eq!(
+        seen_from,
+        Some([0.0; 3]),
+        "an organised cloud is in its camera's frame"
+    );
+    let surface = part.surface.points.clone();
+    let rec = Recognizer::with_part(part, params).unwrap();
+    let r = rec.recognize_seen_from(&scene, seen_from).unwrap();
+    assert_eq!(r.detections.len(), 1, "{:#?}", r.detections);
+    let best = &r.detections[0];
+    let on = share_on_carton(&crop, &surface, &best.pose);
+    assert!(on >= 0.8, "{on:.2} of the model on the carton");
+    let view = best.view.expect("verified against the view");
+    assert!(view.visibility > 0.5, "{view:?}");
 }
 
 #[test]
@@ -33,6 +77,7 @@ fn milk_carton_is_found_in_the_kinect_scene() {
     let crop_index = NearestIndex::new(&crop.points).unwrap();
     let placed: Vec<_> = rec
         .model()
+        .expect("the thesis engine")
         .final_keypoints
         .iter()
         .map(|p| binpick_cloud::transform_point(&best.pose, p))

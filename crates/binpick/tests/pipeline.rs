@@ -3,7 +3,9 @@
 
 mod support;
 
-use binpick::{Algorithm, Error, Params, PointCloud, Recognition, Recognizer, pose};
+use binpick::{
+    Algorithm, Engine, Error, FoundBy, Params, PointCloud, Recognition, Recognizer, pose,
+};
 use nalgebra::Isometry3;
 use support::*;
 
@@ -91,6 +93,7 @@ fn finds_every_instance_with_both_algorithms() {
             &model(),
             Params {
                 algorithm,
+                engine: Engine::Thesis,
                 ..Params::default()
             },
         )
@@ -114,12 +117,20 @@ fn finds_every_instance_with_both_algorithms() {
         );
         assert!(last.final_score > r.detections[0].final_score);
         match algorithm {
-            Algorithm::SeparatedFpfh => {
-                assert!(r.detections.iter().all(|d| d.fpfh_radius_mm.is_some()))
-            }
-            Algorithm::MergedFpfh => {
-                assert!(r.detections.iter().all(|d| d.fpfh_radius_mm.is_none()))
-            }
+            Algorithm::SeparatedFpfh => assert!(r.detections.iter().all(|d| matches!(
+                d.found_by,
+                FoundBy::Cluster {
+                    fpfh_radius_mm: Some(_),
+                    ..
+                }
+            ))),
+            Algorithm::MergedFpfh => assert!(r.detections.iter().all(|d| matches!(
+                d.found_by,
+                FoundBy::Cluster {
+                    fpfh_radius_mm: None,
+                    ..
+                }
+            ))),
         }
     }
 }
@@ -175,12 +186,25 @@ fn scene_without_the_part_yields_nothing() {
             ]);
         }
     }
-    let rec = Recognizer::new(&model(), Params::default()).unwrap();
+    let thesis = Params {
+        engine: Engine::Thesis,
+        ..Params::default()
+    };
+    let rec = Recognizer::new(&model(), thesis).unwrap();
     let r = rec.recognize(&to_cloud(&pts)).unwrap();
     assert!(r.detections.is_empty(), "{:#?}", r.detections);
     assert!(
         !r.clusters.is_empty(),
         "clutter was clustered and rejected, not skipped"
+    );
+    // The scene-voting engine verifies hypotheses on the clutter and refuses them all.
+    let rec = Recognizer::new(&model(), Params::default()).unwrap();
+    let r = rec.recognize(&to_cloud(&pts)).unwrap();
+    assert!(r.detections.is_empty(), "{:#?}", r.detections);
+    let v = r.voting.expect("scene-voting report");
+    assert!(
+        v.candidates > 0,
+        "hypotheses were verified and refused: {v:?}"
     );
 }
 

@@ -23,7 +23,7 @@ use binpick_cloud::Point;
 use crate::deadline::{Deadline, ms};
 use crate::error::Result;
 use crate::params::Params;
-use crate::result::{ClusterReport, Detection, SearchStop};
+use crate::result::{ClusterReport, Detection, FoundBy, SearchStop};
 use crate::stages::cluster::{self, mark_explained, recluster, spheres};
 use crate::stages::features::cluster_features;
 use crate::stages::final_alignment::{FinalWorld, accept, final_alignment, rejection};
@@ -157,7 +157,7 @@ impl ClusterSearch<'_> {
                 Err(stop) => {
                     last = stop;
                     let tighter = (tol * pile.recluster_tolerance_factor)
-                        .max(pile.recluster_min_tolerance_factor * p.preprocess.resolution_mm);
+                        .max(pile.recluster_min_tolerance_factor * p.preprocess.resolution());
                     if pile.tighter_recluster && part.len() > model_points && tighter < tol {
                         let subs = recluster(&points, &part, min_size, tighter)?;
                         if subs.len() > 1 {
@@ -220,7 +220,7 @@ impl ClusterSearch<'_> {
         for initial in candidates {
             self.deadline.check("final alignment")?;
             let t = Instant::now();
-            let resolution = p.preprocess.resolution_mm;
+            let resolution = p.preprocess.resolution();
             let fin = final_alignment(
                 &self.model.final_keypoints,
                 &self.model.cloud,
@@ -240,11 +240,14 @@ impl ClusterSearch<'_> {
                     initial_score: initial.score,
                     final_score: fin.score,
                     score_before_icp: fin.score_before_icp,
-                    cluster,
-                    cluster_round: out.detections.len(),
-                    fpfh_radius_mm: initial.fpfh_radius_mm,
-                    sac_threshold_mm: initial.sac_threshold_mm,
-                    sac_inliers: initial.sac_inliers,
+                    found_by: FoundBy::Cluster {
+                        cluster,
+                        round: out.detections.len(),
+                        fpfh_radius_mm: initial.fpfh_radius_mm,
+                        sac_threshold_mm: initial.sac_threshold_mm,
+                        sac_inliers: initial.sac_inliers,
+                    },
+                    view: None,
                     icp: fin.icp,
                     height_mm: height_mm(&fin.pose, &self.model.final_keypoints, p.ranking.up),
                     rank_reason: String::new(),

@@ -5,3 +5,4 @@
 //! preprocessing, the final alignment, the validators and the ranking.
 
 pub(crate) mod cluster_search;
+pub(crate) mod scene_voting;

@@ -12,10 +12,15 @@ use serde::{Deserialize, Serialize};
 use binpick_cloud::Units;
 
 pub use stages::{
-    ClusteringConfig, ConsensusConfig, FeatureConfig, FeatureSurface, IcpConfig, PileSearchConfig,
-    PreprocessConfig, RankingConfig, RegionOfInterest, RuntimeConfig, SupportRemoval,
-    ValidationConfig,
+    ClusteringConfig, ConsensusConfig, Engine, FeatureConfig, FeatureSurface, IcpConfig,
+    PileSearchConfig, PreprocessConfig, RankingConfig, RegionOfInterest, RuntimeConfig,
+    SensorConfig, SupportRemoval, ValidationConfig, VerifyConfig, VotingConfig,
 };
+
+/// The thesis's scan resolution (4.3 #1), mm: what the presets use.
+pub const THESIS_RESOLUTION_MM: f64 = 1.0;
+/// The thesis presets' support-plane distance: 1.5 x the resolution, mm.
+pub const THESIS_SUPPORT_DISTANCE_MM: f64 = 1.5;
 
 /// Which initial-alignment algorithm to run (thesis chapter 4).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -56,7 +61,10 @@ impl std::str::FromStr for Algorithm {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Params {
-    /// Initial-alignment algorithm (4.1 / 4.2). Default 1, the thesis's choice (5.3.3).
+    /// Which engine finds the parts. Default scene-voting; `thesis_strict` selects thesis.
+    pub engine: Engine,
+    /// Initial-alignment algorithm of the thesis engine (4.1 / 4.2). Default 1, the thesis's
+    /// choice (5.3.3).
     pub algorithm: Algorithm,
     /// Units of the input clouds; they are scaled to mm on load. Default mm.
     pub units: Units,
@@ -81,12 +89,17 @@ pub struct Params {
     #[serde(flatten)]
     pub ranking: RankingConfig,
     #[serde(flatten)]
+    pub voting: VotingConfig,
+    #[serde(flatten)]
+    pub verify: VerifyConfig,
+    #[serde(flatten)]
     pub runtime: RuntimeConfig,
 }
 
 impl Default for Params {
     fn default() -> Self {
         Self {
+            engine: Engine::SceneVoting,
             algorithm: Algorithm::SeparatedFpfh,
             units: Units::Millimetres,
             thesis_strict: false,
@@ -98,6 +111,8 @@ impl Default for Params {
             validation: ValidationConfig::default(),
             pile: PileSearchConfig::default(),
             ranking: RankingConfig::default(),
+            voting: VotingConfig::default(),
+            verify: VerifyConfig::default(),
             runtime: RuntimeConfig::default(),
         }
     }
@@ -153,7 +168,11 @@ impl Preset {
     pub fn params(self) -> Params {
         let odd_thresholds: Vec<f64> = (0..10).map(|i| f64::from(2 * i + 1)).collect();
         // 5.5: fixed for all conveyor tests.
-        let mut conveyor = Params::default();
+        // 4.3: the thesis's absolute scale.
+        let mut thesis = Params::default();
+        thesis.preprocess.resolution_mm = Some(THESIS_RESOLUTION_MM);
+        thesis.preprocess.support.distance_mm = Some(THESIS_SUPPORT_DISTANCE_MM);
+        let mut conveyor = thesis.clone();
         conveyor.clustering.cluster_max_factor = 10.0;
         conveyor.consensus.sac_thresholds_mm = odd_thresholds;
         // 5.6: fixed for all robot-arm tests.
@@ -162,7 +181,7 @@ impl Preset {
         arm.clustering.cluster_max_factor = 5.0;
         // (base, initial leaf, final leaf, initial score max, final score max, radii)
         let (mut p, initial_leaf, final_leaf, initial_max, final_max, radii) = match self {
-            Preset::Thesis => return Params::default(),
+            Preset::Thesis => return thesis,
             Preset::A | Preset::B | Preset::C1 => {
                 (conveyor, 3.0, 2.0, 200.0, 20.0, [5.0, 10.0, 15.0, 20.0])
             }
@@ -218,6 +237,8 @@ impl Params {
         self.validation.validate()?;
         self.pile.validate()?;
         self.ranking.validate()?;
+        self.voting.validate()?;
+        self.verify.validate()?;
         self.runtime.validate()
     }
 
@@ -259,6 +280,7 @@ impl Params {
     pub fn stages(&self) -> Params {
         let mut p = self.clone();
         if p.thesis_strict {
+            p.engine = Engine::Thesis;
             p.consensus.independent_draws = false;
             p.consensus.consensus_modes = 1;
             p.consensus.symmetry_candidates = false;
@@ -275,7 +297,7 @@ impl Params {
 
     /// Cluster tolerance in mm.
     pub fn cluster_tolerance_mm(&self) -> f64 {
-        self.clustering.cluster_tolerance_factor * self.preprocess.resolution_mm
+        self.clustering.cluster_tolerance_factor * self.preprocess.resolution()
     }
 }
 
@@ -296,9 +318,24 @@ mod tests {
     use super::*;
 
     #[test]
-    fn defaults_are_thesis_4_3() {
+    fn defaults_are_scale_free_and_use_scene_voting() {
         let p = Params::default();
-        assert_eq!(p.preprocess.resolution_mm, 1.0);
+        assert_eq!(p.engine, Engine::SceneVoting);
+        assert_eq!(p.preprocess.resolution_mm, None, "measured on every scan");
+        assert_eq!(p.preprocess.support.distance_mm, None);
+        p.validate().unwrap();
+        // thesis_strict runs the thesis engine.
+        let strict = Params {
+            thesis_strict: true,
+            ..Params::default()
+        };
+        assert_eq!(strict.stages().engine, Engine::Thesis);
+    }
+
+    #[test]
+    fn thesis_preset_is_4_3() {
+        let p = Preset::Thesis.params();
+        assert_eq!(p.preprocess.resolution_mm, Some(1.0));
         assert_eq!(p.cluster_tolerance_mm(), 1.5);
         assert_eq!(
             (
@@ -381,7 +418,7 @@ mod tests {
         let back = Params::from_toml(&p.to_toml()).unwrap();
         assert_eq!(back, p);
         let partial = Params::from_toml("resolution_mm = 2.0\nalgorithm = \"2\"\n").unwrap();
-        assert_eq!(partial.preprocess.resolution_mm, 2.0);
+        assert_eq!(partial.preprocess.resolution_mm, Some(2.0));
         assert_eq!(partial.algorithm, Algorithm::MergedFpfh);
         assert_eq!(partial.features.initial_leaf_mm, 3.0);
         assert!(Params::from_toml("resolutoin_mm = 2.0").is_err());
@@ -391,7 +428,7 @@ mod tests {
         )
         .unwrap();
         assert_eq!(over.icp.final_leaf_mm, 1.0);
-        assert_eq!(over.preprocess.support.distance_mm, 2.5);
+        assert_eq!(over.preprocess.support.distance_mm, Some(2.5));
         assert_eq!(
             over.preprocess.support.max_planes, 5,
             "other [support] keys keep the base value"
@@ -414,9 +451,12 @@ mod tests {
             p
         };
         let cases: Vec<(Params, &str)> = vec![
-            (set(&|p| p.preprocess.resolution_mm = 0.0), "resolution_mm"),
             (
-                set(&|p| p.preprocess.resolution_mm = f64::NAN),
+                set(&|p| p.preprocess.resolution_mm = Some(0.0)),
+                "resolution_mm",
+            ),
+            (
+                set(&|p| p.preprocess.resolution_mm = Some(f64::NAN)),
                 "resolution_mm",
             ),
             (set(&|p| p.features.fpfh_radii_mm = vec![]), "fpfh_radii_mm"),

@@ -165,6 +165,27 @@ impl Check<Option<u64>> for Count {
     }
 }
 
+/// `None` (derived automatically), or a value the inner check accepts.
+#[derive(Clone, Copy, Debug)]
+pub struct Auto<C>(pub C);
+
+/// `None` (auto) or a value within the inner check.
+pub const fn auto<C>(inner: C) -> Auto<C> {
+    Auto(inner)
+}
+
+impl<T, C: Check<T>> Check<Option<T>> for Auto<C> {
+    fn ok(&self, v: &Option<T>) -> bool {
+        v.as_ref().is_none_or(|v| self.0.ok(v))
+    }
+    fn describe(&self) -> String {
+        format!("auto (unset) or {}", self.0.describe())
+    }
+    fn show(&self, v: &Option<T>) -> String {
+        v.as_ref().map_or_else(|| "auto".into(), |v| self.0.show(v))
+    }
+}
+
 /// Three finite numbers (`nonzero`: not all zero).
 #[derive(Clone, Copy, Debug)]
 pub struct Vec3 {

@@ -60,8 +60,9 @@ stage_config! {
         /// Fit and remove planes at all.
         enabled: bool = true, any();
         /// Points closer than this to a plane belong to it, mm: above the scanner noise, below
-        /// the thickness of a 2 mm sheet lying flat (1.5 x resolution).
-        distance_mm: f64 = 1.5, within(0.1, 20.0, "mm");
+        /// the thickness of a 2 mm sheet lying flat. None (auto): 1.5 x the resolution.
+        #[serde(skip_serializing_if = "Option::is_none")]
+        distance_mm: Option<f64> = None, auto(within(0.01, 20.0, "mm"));
         /// At most this many planes are removed (floor + up to four bin walls).
         max_planes: u32 = 5, count(0, 20, "");
         /// A plane is support only if it has more points than this multiple of the model's
@@ -78,7 +79,10 @@ stage_config! {
     /// support removal.
     pub struct PreprocessConfig {
         /// Scan resolution: voxel-grid leaf applied to scene and model on load, mm (4.3 #1).
-        resolution_mm: f64 = 1.0, within(0.01, 100.0, "mm");
+        /// None (auto): measured on every scan from its point spacing, and never finer than
+        /// 1/100 of the model's diameter (see `binpick::scale`).
+        #[serde(skip_serializing_if = "Option::is_none")]
+        resolution_mm: Option<f64> = None, auto(within(0.01, 100.0, "mm"));
         /// Optional crop of the scene before anything else.
         #[serde(skip_serializing_if = "Option::is_none")]
         region_of_interest: Option<RegionOfInterest> = None, roi();
@@ -88,6 +92,22 @@ stage_config! {
         min_extent_resolutions: f64 = 10.0, within(1.0, 1e6, "x resolution");
         /// A cloud whose extent is above this is refused as "not in mm", mm.
         max_extent_mm: f64 = 100_000.0, positive(1e9, "mm");
+    }
+}
+
+impl PreprocessConfig {
+    /// The resolution in effect, mm: the configured one, or the thesis's 1 mm before a scan
+    /// has been measured (the recognizer always resolves auto values first, see
+    /// `Params::resolved`).
+    pub fn resolution(&self) -> f64 {
+        self.resolution_mm.unwrap_or(super::THESIS_RESOLUTION_MM)
+    }
+}
+
+impl SupportRemoval {
+    /// The plane distance in effect, mm: the configured one, or 1.5 x `resolution_mm`.
+    pub fn distance(&self, resolution_mm: f64) -> f64 {
+        self.distance_mm.unwrap_or(1.5 * resolution_mm)
     }
 }
 
@@ -248,8 +268,172 @@ stage_config! {
         /// Final scores in the same band of this width count as equal and the higher part is
         /// picked first, percentage points (4.2.2; 0 = score only).
         rank_score_band_pct: f64 = 2.0, within(0.0, 100.0, "percentage points");
-        /// Up direction of the scene (for "highest in the pile").
+        /// Up direction of the scene (for "highest in the pile"; the approach direction of a
+        /// scanner looking down).
         up: [f64; 3] = [0.0, 0.0, 1.0], direction();
+        /// Scene-voting engine: a part with more than this share of its visible surface
+        /// covered by something other than the belt or bin is not free to pick.
+        covered_max: f64 = 0.03, within(0.0, 1.0, "");
+        /// Scene-voting engine: estimated visible fractions in the same band of this width
+        /// count as equal and the higher part is picked first.
+        visibility_band: f64 = 0.1, within(0.0, 1.0, "");
+    }
+}
+
+/// Which engine finds the parts.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Engine {
+    /// Point-pair-feature voting over the whole scene (Drost et al. 2010, Vidal et al. 2018),
+    /// verification of every hypothesis against the surface the sensor can see, and a greedy
+    /// explanation of the scene: every part of a pile, each once.
+    #[default]
+    SceneVoting,
+    /// The thesis: Algorithm 1 or 2 on every Euclidean cluster (4.1, 4.2).
+    Thesis,
+}
+
+impl Engine {
+    pub fn name(self) -> &'static str {
+        match self {
+            Engine::SceneVoting => "scene-voting",
+            Engine::Thesis => "thesis",
+        }
+    }
+}
+
+impl std::str::FromStr for Engine {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "scene-voting" => Ok(Engine::SceneVoting),
+            "thesis" => Ok(Engine::Thesis),
+            other => Err(format!(
+                "unknown engine {other:?}: expected scene-voting or thesis"
+            )),
+        }
+    }
+}
+
+/// Where the sensor was, for the scene-voting engine's view of the scene.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case", tag = "kind")]
+pub enum SensorConfig {
+    /// A camera at the origin when the scene lies far out along one side of it (a cloud in
+    /// its camera's frame, as depth cameras write them), else a scanner far above along `up`.
+    #[default]
+    Auto,
+    /// A line scanner or far camera looking down `-up` (rays parallel).
+    Above,
+    /// A camera at `position_mm` (scene frame).
+    Camera { position_mm: [f64; 3] },
+}
+
+/// A valid sensor config.
+#[derive(Clone, Copy, Debug)]
+pub struct SensorCheck;
+
+/// A valid sensor config (finite camera position).
+pub const fn sensor() -> SensorCheck {
+    SensorCheck
+}
+
+impl Check<SensorConfig> for SensorCheck {
+    fn ok(&self, v: &SensorConfig) -> bool {
+        match v {
+            SensorConfig::Camera { position_mm } => position_mm.iter().all(|c| c.is_finite()),
+            _ => true,
+        }
+    }
+    fn describe(&self) -> String {
+        "auto, above, or camera with a finite position_mm".into()
+    }
+    fn show(&self, v: &SensorConfig) -> String {
+        format!("{v:?}")
+    }
+}
+
+stage_config! {
+    /// Scene voting, hypotheses: point-pair features of model and scene sampled at one step
+    /// tied to the model's diameter (Vidal et al. 2018), every scene reference point voting
+    /// for a model point and a rotation (Drost et al. 2010), votes clustered into poses.
+    pub struct VotingConfig {
+        /// Sampling step of model and scene, in model diameters (Drost: 0.05).
+        sampling_step_diameters: f64 = 0.04, within(0.005, 0.5, "x diameter");
+        /// ... but at least this many working resolutions (no finer than the scan).
+        min_sampling_step_resolutions: f64 = 2.0, within(1.0, 100.0, "x resolution");
+        /// Surface normals are fitted over this radius, in sampling steps ...
+        normal_radius_steps: f64 = 0.75, within(0.1, 10.0, "x sampling step");
+        /// ... but at least this many working resolutions (noise).
+        min_normal_radius_resolutions: f64 = 3.0, within(1.0, 100.0, "x resolution");
+        /// Bins of each feature angle over 0-180 deg (Drost: 12 deg bins).
+        feature_angle_bins: u32 = 15, count(4, 90, "");
+        /// Bins of the rotation about the normal over a full turn.
+        alpha_bins: u32 = 30, count(4, 360, "");
+        /// A model pair is also filed under a neighbouring bin when its feature lies within
+        /// this fraction of a bin of the edge (Vidal's neighbour voting; 0 = off).
+        spread: f64 = 0.25, within(0.0, 0.5, "x bin");
+        /// Most model pairs kept per feature bin (flat regions fill a few bins with thousands
+        /// of pairs that vote alike).
+        max_pairs_per_bin: u32 = 200, count(1, 1_000_000, "");
+        /// Every n-th scene sample is a reference point.
+        reference_stride: usize = 2, count(1, 100, "");
+        /// Peaks kept per reference point.
+        peaks_per_reference: usize = 3, count(1, 20, "");
+        /// A secondary peak needs this share of the reference point's best peak.
+        secondary_peak_ratio: f64 = 0.6, within(0.0, 1.0, "");
+        /// Votes whose poses move the model's centre less than this, in diameters ...
+        cluster_translation_diameters: f64 = 0.1, positive(1.0, "x diameter");
+        /// ... and rotate it less than this (up to symmetry) are one hypothesis, deg.
+        cluster_rotation_deg: f64 = 24.0, within(1.0, 180.0, "deg");
+        /// Strongest pose clusters verified, at most.
+        hypotheses: usize = 60, count(1, 10_000, "");
+    }
+}
+
+stage_config! {
+    /// Scene voting, verification: every hypothesis is refined by ICP on the model surface
+    /// the sensor can see, then judged against the sensor's view of the scene (explained,
+    /// occluded, free-space and missing surface); hypotheses compete for scene surface
+    /// (greedy scene explanation, after Aldoma et al. 2012).
+    pub struct VerifyConfig {
+        /// View grid cell, in working resolutions.
+        cell_resolutions: f64 = 1.0, within(0.25, 20.0, "x resolution");
+        /// A model surface within this many cells (along the ray) of the scene's is explained.
+        tolerance_cells: f64 = 1.5, within(0.1, 20.0, "x cell");
+        /// ... and only where the surfaces' normals differ by less than this, deg.
+        max_normal_angle_deg: f64 = 45.0, within(1.0, 180.0, "deg");
+        /// Model surface steeper than this to the sensor's ray is not judged, deg.
+        max_incidence_deg: f64 = 75.0, within(10.0, 89.0, "deg");
+        /// A part must show at least this share of the surface the sensor would see of it
+        /// alone in that pose.
+        min_visibility: f64 = 0.25, within(0.0, 1.0, "");
+        /// The sensor may have seen through at most this share of that surface.
+        max_free_space: f64 = 0.08, within(0.0, 1.0, "");
+        /// The scene's surface may carry on past at most this share of the part's outline
+        /// (a real part's outline is a depth edge of the scene).
+        max_continued: f64 = 1.0, within(0.0, 1.0, "");
+        /// The confirmed surface's mean fit weight, 1 - (depth error / tolerance)^2 with a
+        /// quarter for a neighbouring cell, must reach this (the scene must lie on the model,
+        /// not just near it).
+        min_fit: f64 = 0.7, within(0.0, 1.0, "");
+        /// A part must explain at least this share of the cells the model covers in its
+        /// median view (it must be seen, not guessed).
+        min_explained_share: f64 = 0.1, within(0.0, 1.0, "");
+        /// In the competition, each free-space cell costs this many explained cells.
+        free_space_weight: f64 = 2.0, within(0.0, 100.0, "");
+        /// A hypothesis must newly explain this share of its cells (else it repeats a part).
+        min_new_share: f64 = 0.5, within(0.0, 1.0, "");
+        /// ICP iterations per refinement pass (two passes: coarse, then fine).
+        refine_iterations: u32 = 15, count(1, 1000, "");
+        /// Also try each hypothesis turned by the model's near-symmetries (a near-symmetric
+        /// part turned half-way matches the scene almost as well; the view decides).
+        near_symmetry_variants: bool = true, any();
+        /// Where the sensor was (see [`SensorConfig`]).
+        sensor: SensorConfig = SensorConfig::Auto, sensor();
+        /// Record every verified candidate (pose, view shares, verdict) in the result, for
+        /// diagnosing what was refused and why.
+        report_candidates: bool = false, any();
     }
 }
 

@@ -15,7 +15,11 @@
 pub(crate) mod cluster;
 pub(crate) mod features;
 pub(crate) mod final_alignment;
+pub(crate) mod hypotheses;
 pub(crate) mod initial;
 pub(crate) mod model;
+pub mod part;
 pub(crate) mod preprocess;
 pub(crate) mod rank;
+pub mod scale;
+pub(crate) mod verify;

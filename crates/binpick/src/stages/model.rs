@@ -2,12 +2,12 @@
 //! recomputed it per cluster; 5.7 notes it "can be precomputed offline").
 
 use binpick_cloud::{Point, PointCloud};
-use binpick_pcl::IndexedCloud;
+use binpick_pcl::{IcpParams, IndexedCloud};
 use nalgebra::{Isometry3, Matrix3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
 use crate::error::{Result, input, pcl};
-use crate::params::{IcpConfig, Params};
+use crate::params::Params;
 use crate::stages::features::{RadiusFeatures, feature_surface, fpfh_for_radius, keypoints};
 use crate::stages::final_alignment::icp_settings;
 
@@ -43,7 +43,7 @@ impl PreparedModel {
     /// parallel, each with `threads` OpenMP threads). `stages` are the resolved stage configs
     /// ([`Params::stages`]).
     pub(crate) fn new(model: &PointCloud, stages: &Params, threads: u32) -> Result<Self> {
-        let resolution_mm = stages.preprocess.resolution_mm;
+        let resolution_mm = stages.preprocess.resolution();
         let cfg = &stages.features;
         let cloud = binpick_pcl::voxel_grid(&model.points, resolution_mm as f32)
             .map_err(pcl("model voxel grid"))?;
@@ -101,7 +101,9 @@ impl PreparedModel {
         let diameter_mm = diameter(&initial_keypoints);
         let radius_mm = radius(&cloud);
         let near_symmetries = if stages.consensus.symmetry_candidates {
-            near_symmetries(&cloud, &initial_keypoints, diameter_mm, &stages.icp)?
+            near_symmetries(&cloud, &initial_keypoints, diameter_mm, &|turn| {
+                icp_settings(&stages.icp, turn)
+            })?
         } else {
             Vec::new()
         };
@@ -121,11 +123,11 @@ impl PreparedModel {
 /// ICP of the model's final keypoints onto the model, keeping those that do not collapse to
 /// the identity. Bent sheets and pipes are often nearly symmetric under one of them, and the
 /// RANSAC consensus then lands on the flipped pose.
-fn near_symmetries(
+pub(crate) fn near_symmetries(
     cloud: &[Point],
     keypoints: &[Point],
     diameter_mm: f64,
-    icp: &IcpConfig,
+    icp: &(dyn Fn(&Isometry3<f64>) -> IcpParams + Sync),
 ) -> Result<Vec<Isometry3<f64>>> {
     let pts: Vec<Vector3<f64>> = cloud
         .iter()
@@ -149,7 +151,7 @@ fn near_symmetries(
                 * UnitQuaternion::from_axis_angle(&axis, std::f64::consts::PI)
                 * Translation3::from(-c);
             target
-                .icp(keypoints, &icp_settings(icp, &turn))
+                .icp(keypoints, &icp(&turn))
                 .ok()
                 .and_then(|o| o.pose())
                 .unwrap_or(turn)

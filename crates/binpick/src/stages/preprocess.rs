@@ -28,14 +28,15 @@ pub(crate) fn check_units(
         .bounds()
         .map(|b| f64::from(b.diagonal()))
         .unwrap_or(0.0);
-    let min = cfg.min_extent_resolutions * cfg.resolution_mm;
+    let min = cfg.min_extent_resolutions * cfg.resolution();
     if extent < min {
         return Err(input(
             what,
             format!(
                 "its extent is {extent:.4} mm, smaller than {} x the {} mm resolution: \
                  the cloud looks like it is in metres (binpick works in millimetres; use --units m or units = \"m\")",
-                cfg.min_extent_resolutions, cfg.resolution_mm
+                cfg.min_extent_resolutions,
+                cfg.resolution()
             ),
         ));
     }
@@ -62,6 +63,26 @@ pub(crate) fn preprocess(
     model_points: usize,
     threads: usize,
 ) -> Result<(Vec<Point>, PreprocessReport)> {
+    let (points, support, report) =
+        preprocess_keeping_support(scene, cfg, tolerance_mm, model_points, threads)?;
+    let world = points
+        .into_iter()
+        .zip(support)
+        .filter_map(|(p, s)| (!s).then_some(p))
+        .collect();
+    Ok((world, report))
+}
+
+/// Like [`preprocess`], but keeps the support: every voxelised point, with a flag per point
+/// that says whether it was removed as support (belt, floor, wall). The scene-voting engine
+/// needs the support to know what the sensor saw behind the parts.
+pub(crate) fn preprocess_keeping_support(
+    scene: &PointCloud,
+    cfg: &PreprocessConfig,
+    tolerance_mm: f64,
+    model_points: usize,
+    threads: usize,
+) -> Result<(Vec<Point>, Vec<bool>, PreprocessReport)> {
     let mut report = PreprocessReport {
         input_points: scene.len(),
         ..Default::default()
@@ -93,22 +114,25 @@ pub(crate) fn preprocess(
             "no point lies inside the region of interest",
         ));
     }
-    let mut points = binpick_pcl::voxel_grid(&cropped, cfg.resolution_mm as f32)
+    let points = binpick_pcl::voxel_grid(&cropped, cfg.resolution() as f32)
         .map_err(pcl("scene voxel grid"))?;
     report.voxel_merged = cropped.len() - points.len();
 
-    if cfg.support.enabled {
-        points = remove_support(
-            points,
+    let support = if cfg.support.enabled {
+        find_support(
+            &points,
             &cfg.support,
+            cfg.resolution(),
             tolerance_mm,
             model_points,
             threads,
             &mut report,
-        )?;
-    }
-    report.remaining = points.len();
-    Ok((points, report))
+        )?
+    } else {
+        vec![false; points.len()]
+    };
+    report.remaining = support.iter().filter(|s| !**s).count();
+    Ok((points, support, report))
 }
 
 /// Removes supporting planes. A RANSAC plane is support only where its inliers form a
@@ -117,14 +141,15 @@ pub(crate) fn preprocess(
 /// it are coplanar but disconnected patches and must stay. A plane with no such patch is
 /// excluded from later fits (so a bin wall can still be found after it) but kept in the
 /// scene.
-fn remove_support(
-    points: Vec<Point>,
+fn find_support(
+    points: &[Point],
     support: &SupportRemoval,
+    resolution_mm: f64,
     tolerance: f64,
     model_points: usize,
     threads: usize,
     report: &mut PreprocessReport,
-) -> Result<Vec<Point>> {
+) -> Result<Vec<bool>> {
     let min_patch = (support.min_points_factor * model_points as f64)
         .ceil()
         .max(3.0) as usize;
@@ -138,7 +163,7 @@ fn remove_support(
         let cand_pts: Vec<Point> = candidates.iter().map(|&i| points[i as usize]).collect();
         let Some(plane) = binpick_pcl::segment_plane(
             &cand_pts,
-            support.distance_mm as f32,
+            support.distance(resolution_mm) as f32,
             support.ransac_iterations,
             threads as u32,
         )
@@ -180,11 +205,7 @@ fn remove_support(
             !is_inlier[k - 1]
         });
     }
-    Ok(points
-        .into_iter()
-        .zip(removed)
-        .filter_map(|(p, r)| (!r).then_some(p))
-        .collect())
+    Ok(removed)
 }
 
 /// For points on a plane, whether each belongs to a connected patch of at least `min_points`.

@@ -12,7 +12,8 @@ use nalgebra::{Isometry3, Point3, Vector3};
 
 use binpick_cloud::Point;
 
-use crate::result::Detection;
+use crate::params::RankingConfig;
+use crate::result::{Detection, FoundBy, ViewCheck};
 use crate::validate::{NearestIndex, outlier_percent};
 
 /// Keeps, among detections of one physical instance, the one with the best final score:
@@ -27,8 +28,7 @@ pub(crate) fn suppress_duplicates(
     detections.sort_by(|a, b| {
         a.final_score
             .total_cmp(&b.final_score)
-            .then(a.cluster.cmp(&b.cluster))
-            .then(a.cluster_round.cmp(&b.cluster_round))
+            .then(a.found_order().cmp(&b.found_order()))
     });
     let kp = model_keypoints;
     let d = outlier_distance_mm;
@@ -87,8 +87,7 @@ pub(crate) fn rank_detections(detections: &mut [Detection], band: f64) {
             std::cmp::Ordering::Equal
         }
         .then(a.final_score.total_cmp(&b.final_score))
-        .then(a.cluster.cmp(&b.cluster))
-        .then(a.cluster_round.cmp(&b.cluster_round))
+        .then(a.found_order().cmp(&b.found_order()))
     });
     let bands: Vec<i64> = detections.iter().map(key_band).collect();
     for (i, d) in detections.iter_mut().enumerate() {
@@ -121,6 +120,64 @@ pub(crate) fn rank_detections(detections: &mut [Detection], band: f64) {
     }
 }
 
+/// The scene-voting engine's pick order (thesis 4.2.2's occlusion band, extended with the
+/// view): parts nothing lies on come first (covered share of their visible surface at most
+/// `covered_max`); then higher estimated visibility, compared in bands of `visibility_band`;
+/// within a band the highest part; remaining ties by votes, then hypothesis. Detections
+/// without a view check (none from this engine) count as covered and invisible.
+pub(crate) fn rank_by_view(detections: &mut [Detection], cfg: &RankingConfig) {
+    let band = cfg.visibility_band;
+    let key = |d: &Detection| {
+        let v = d.view.unwrap_or(ViewCheck {
+            visibility: 0.0,
+            free_space: 0.0,
+            covered: 1.0,
+            missing: 0.0,
+            continued: 0.0,
+            fit: 0.0,
+            visible_cells: 0,
+        });
+        let free = v.covered <= cfg.covered_max;
+        let vis_band = if band > 0.0 {
+            (v.visibility / band).floor() as i64
+        } else {
+            0
+        };
+        (free, vis_band, v)
+    };
+    let votes = |d: &Detection| match d.found_by {
+        FoundBy::Voting { votes, .. } => votes,
+        FoundBy::Cluster { .. } => 0,
+    };
+    detections.sort_by(|a, b| {
+        let (fa, ba, _) = key(a);
+        let (fb, bb, _) = key(b);
+        fb.cmp(&fa)
+            .then(bb.cmp(&ba))
+            .then(b.height_mm.total_cmp(&a.height_mm))
+            .then(votes(b).cmp(&votes(a)))
+            .then(a.found_order().cmp(&b.found_order()))
+    });
+    for (i, d) in detections.iter_mut().enumerate() {
+        let (free, vis_band, v) = key(d);
+        d.rank = i + 1;
+        let lo = vis_band as f64 * band;
+        let covered = format!("{:.1} % of its visible surface covered", 100.0 * v.covered);
+        d.rank_reason = format!(
+            "{}; visibility band {:.0}-{:.0} % ({:.1} %); height {:.1} mm",
+            if free {
+                format!("free ({covered})")
+            } else {
+                format!("not free ({covered})")
+            },
+            100.0 * lo,
+            100.0 * (lo + band).min(1.0),
+            100.0 * v.visibility,
+            d.height_mm
+        );
+    }
+}
+
 fn ordinal(n: usize) -> String {
     let suffix = match (n % 10, n % 100) {
         (1, x) if x != 11 => "st",
@@ -145,11 +202,14 @@ mod tests {
             initial_score: 1.0,
             final_score: score,
             score_before_icp: score,
-            cluster,
-            cluster_round: 0,
-            fpfh_radius_mm: Some(10.0),
-            sac_threshold_mm: 1.0,
-            sac_inliers: 10,
+            found_by: FoundBy::Cluster {
+                cluster,
+                round: 0,
+                fpfh_radius_mm: Some(10.0),
+                sac_threshold_mm: 1.0,
+                sac_inliers: 10,
+            },
+            view: None,
             icp: IcpReport {
                 converged: true,
                 iterations: 3,
@@ -173,7 +233,7 @@ mod tests {
             det(3, 3.0, 100.0),
         ];
         rank_detections(&mut d, 2.0);
-        let order: Vec<usize> = d.iter().map(|x| x.cluster).collect();
+        let order: Vec<usize> = d.iter().map(|x| x.cluster().unwrap()).collect();
         assert_eq!(order, vec![1, 0, 3, 2]);
         assert_eq!(
             d.iter().map(|x| x.rank).collect::<Vec<_>>(),
@@ -196,7 +256,7 @@ mod tests {
         let mut d = vec![det(2, 5.0, 0.0), det(0, 1.0, 0.0), det(1, 5.0, 99.0)];
         rank_detections(&mut d, 0.0);
         assert_eq!(
-            d.iter().map(|x| x.cluster).collect::<Vec<_>>(),
+            d.iter().map(|x| x.cluster().unwrap()).collect::<Vec<_>>(),
             vec![0, 1, 2]
         );
         assert!(d[0].rank_reason.contains("score only"));

@@ -1,0 +1,165 @@
+//! Scene explanation: verified hypotheses compete for the scene surface they explain. The
+//! one that newly explains the most surface, weighted by how well it fits (less a penalty
+//! for its free-space contradictions), is taken first; a hypothesis whose surface is mostly explained already is
+//! the same part again (or a worse pose of it) and is dropped. A greedy take on the global
+//! hypotheses verification of Aldoma et al. 2012: every part is reported once, and together
+//! the taken poses explain the pile.
+
+use crate::MatchError;
+use crate::view::ViewScore;
+
+/// Acceptance of one hypothesis and the competition between them.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ExplainConfig {
+    /// Smallest share of its visible surface the scene must confirm. Default 0.25, range 0-1.
+    pub min_visibility: f64,
+    /// Largest share of its visible surface the sensor may have seen through. Default 0.08,
+    /// range 0-1.
+    pub max_free_space: f64,
+    /// Largest share of its outline the scene's surface may carry on past. Default 0.5,
+    /// range 0-1.
+    pub max_continued: f64,
+    /// Smallest mean fit weight of the confirmed surface (`ViewScore::fit` / `explained`):
+    /// the scene must lie close to the model, not just within the tolerance. Range 0-1.
+    pub min_fit: f64,
+    /// Fewest confirmed grid cells (the part must be seen, not guessed). Range >= 1.
+    pub min_explained_cells: u32,
+    /// Each free-space cell costs this many explained cells in the competition. Default 2,
+    /// range 0-100.
+    pub free_space_weight: f64,
+    /// A hypothesis must explain at least this share of its confirmed cells that no taken
+    /// part explains yet. Default 0.5, range 0-1.
+    pub min_new_share: f64,
+}
+
+impl ExplainConfig {
+    /// Rejects values outside the documented ranges, naming the field.
+    pub fn validate(&self) -> Result<(), MatchError> {
+        let unit = |v: f64| (0.0..=1.0).contains(&v);
+        if !unit(self.min_visibility) {
+            return Err(MatchError::config("min_visibility", "expected 0-1"));
+        }
+        if !unit(self.max_free_space) {
+            return Err(MatchError::config("max_free_space", "expected 0-1"));
+        }
+        if !unit(self.min_fit) {
+            return Err(MatchError::config("min_fit", "expected 0-1"));
+        }
+        if !unit(self.max_continued) {
+            return Err(MatchError::config("max_continued", "expected 0-1"));
+        }
+        if self.min_explained_cells == 0 {
+            return Err(MatchError::config("min_explained_cells", "expected >= 1"));
+        }
+        if !(0.0..=100.0).contains(&self.free_space_weight) {
+            return Err(MatchError::config("free_space_weight", "expected 0-100"));
+        }
+        if !unit(self.min_new_share) {
+            return Err(MatchError::config("min_new_share", "expected 0-1"));
+        }
+        Ok(())
+    }
+
+    /// Why `s` cannot be accepted on its own, or None when it can.
+    pub fn rejection(&self, s: &ViewScore) -> Option<Rejection> {
+        if s.explained < self.min_explained_cells {
+            Some(Rejection::TooLittleSurface)
+        } else if s.visibility() < self.min_visibility {
+            Some(Rejection::LowVisibility)
+        } else if s.free_space_ratio() > self.max_free_space {
+            Some(Rejection::FreeSpace)
+        } else if s.mean_fit() < self.min_fit {
+            Some(Rejection::PoorFit)
+        } else if s.continued_ratio() > self.max_continued {
+            Some(Rejection::NoOutline)
+        } else {
+            None
+        }
+    }
+}
+
+/// Why a hypothesis was not taken.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Rejection {
+    /// Fewer confirmed cells than `min_explained_cells`.
+    TooLittleSurface,
+    /// Visibility below `min_visibility`.
+    LowVisibility,
+    /// Free-space contradictions above `max_free_space`.
+    FreeSpace,
+    /// The scene's surface carries on past more than `max_continued` of its outline.
+    NoOutline,
+    /// The confirmed surface fits worse than `min_fit`.
+    PoorFit,
+    /// Its surface is already explained by a part taken before it.
+    Explained,
+}
+
+/// What happened to each hypothesis.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Explanation {
+    /// Taken hypotheses (indices into the input), in the order they were taken.
+    pub taken: Vec<usize>,
+    /// Per input hypothesis: None if taken, else why not.
+    pub rejected: Vec<Option<Rejection>>,
+}
+
+/// Greedy scene explanation over `scores` (one per hypothesis) on a grid of `cells` cells.
+/// Deterministic: ties go to the lower index.
+pub fn explain_scene(
+    scores: &[ViewScore],
+    cells: usize,
+    config: &ExplainConfig,
+) -> Result<Explanation, MatchError> {
+    config.validate()?;
+    let mut rejected: Vec<Option<Rejection>> = scores.iter().map(|s| config.rejection(s)).collect();
+    let mut open: Vec<usize> = (0..scores.len())
+        .filter(|&i| rejected[i].is_none())
+        .collect();
+    let mut claimed = vec![false; cells];
+    let mut taken = Vec::new();
+    loop {
+        let mut best: Option<(f64, usize)> = None;
+        let mut still_open = Vec::with_capacity(open.len());
+        for &i in &open {
+            let s = &scores[i];
+            // Newly explained cells, and their summed fit weights.
+            let (mut new, mut new_fit) = (0usize, 0.0f64);
+            for (&c, &fit) in s.explained_cells.iter().zip(&s.explained_fit) {
+                if !claimed.get(c as usize).copied().unwrap_or(true) {
+                    new += 1;
+                    new_fit += f64::from(fit);
+                }
+            }
+            let new = new as f64;
+            if new < config.min_new_share * f64::from(s.explained)
+                || new < f64::from(config.min_explained_cells)
+            {
+                rejected[i] = Some(Rejection::Explained);
+                continue;
+            }
+            still_open.push(i);
+            // Well-fitting surface counts more than surface at the edge of the tolerance.
+            let gain = new_fit - config.free_space_weight * f64::from(s.free_space);
+            if best.is_none_or(|(g, _)| gain > g) {
+                best = Some((gain, i));
+            }
+        }
+        open = still_open;
+        let Some((_, i)) = best else {
+            break;
+        };
+        for &c in &scores[i].explained_cells {
+            if let Some(slot) = claimed.get_mut(c as usize) {
+                *slot = true;
+            }
+        }
+        rejected[i] = None;
+        taken.push(i);
+        open.retain(|&j| j != i);
+    }
+    for &i in &open {
+        rejected[i].get_or_insert(Rejection::Explained);
+    }
+    Ok(Explanation { taken, rejected })
+}

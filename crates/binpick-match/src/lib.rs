@@ -1,0 +1,125 @@
+//! Matching a rigid part to a whole scan, in plain Rust over plain data.
+//!
+//! - [`ppf`]: point-pair-feature voting over the whole scene (Drost et al. 2010, with Vidal et
+//!   al. 2018's neighbour-bin voting): many pose hypotheses, several per part, from every
+//!   part of a pile at once;
+//! - [`poses`]: pose clustering under the part's symmetries;
+//! - [`view`]: the sensor's view of the scene as a range grid, and the model rendered into it
+//!   at a hypothesis pose, so each hypothesis is judged only on the surface the sensor could
+//!   see, with free-space and missing-surface contradictions;
+//! - [`explain`]: hypotheses compete for scene surface; a greedy scene explanation keeps a
+//!   set of parts that explains the pile, each part once.
+//!
+//! Lengths are millimetres, angles radians unless a name says degrees. Nothing here calls
+//! PCL: normals, down-sampling and ICP come from the caller (binpick uses PCL for them).
+
+pub mod explain;
+pub mod index;
+pub mod poses;
+pub mod ppf;
+pub mod view;
+
+pub use explain::{ExplainConfig, Explanation, Rejection, explain_scene};
+pub use index::PointIndex;
+pub use poses::{PoseCluster, PoseClustering, Symmetries, cluster_poses};
+pub use ppf::{PpfConfig, PpfModel, Vote, VotingConfig};
+pub use view::{RangeGrid, Sensor, ViewConfig, ViewScore};
+
+/// One point `[x, y, z]`, mm.
+pub type P3 = [f32; 3];
+
+/// Points with one unit normal each.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct OrientedPoints {
+    pub points: Vec<P3>,
+    pub normals: Vec<P3>,
+}
+
+impl OrientedPoints {
+    /// Points and normals of equal length.
+    pub fn new(points: Vec<P3>, normals: Vec<P3>) -> Result<Self, MatchError> {
+        let s = Self { points, normals };
+        s.check("points")?;
+        Ok(s)
+    }
+
+    /// Number of points.
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    /// Whether there are no points.
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    /// Keeps the points whose normal is defined (finite, non-zero).
+    pub fn with_defined_normals(self) -> Self {
+        let (points, normals) = self
+            .points
+            .into_iter()
+            .zip(self.normals)
+            .filter(|(p, n)| {
+                let len2: f32 = n.iter().map(|c| c * c).sum();
+                p.iter().all(|c| c.is_finite()) && len2.is_finite() && len2 > 1e-12
+            })
+            .unzip();
+        Self { points, normals }
+    }
+
+    pub(crate) fn check(&self, what: &'static str) -> Result<(), MatchError> {
+        if self.points.len() != self.normals.len() {
+            return Err(MatchError::Mismatch {
+                what,
+                points: self.points.len(),
+                normals: self.normals.len(),
+            });
+        }
+        if self.points.iter().any(|p| !p.iter().all(|c| c.is_finite())) {
+            return Err(MatchError::NonFinite { what });
+        }
+        Ok(())
+    }
+}
+
+/// What can go wrong while matching.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MatchError {
+    #[error("{field}: {expected}")]
+    Config {
+        field: &'static str,
+        expected: &'static str,
+    },
+    #[error("{what}: {points} point(s), at least {needed} needed")]
+    TooFewPoints {
+        what: &'static str,
+        points: usize,
+        needed: usize,
+    },
+    #[error(
+        "{what}: {points} points, more than the {limit} this stage handles (sample it coarser)"
+    )]
+    TooManyPoints {
+        what: &'static str,
+        points: usize,
+        limit: usize,
+    },
+    #[error("{what}: {points} points but {normals} normals")]
+    Mismatch {
+        what: &'static str,
+        points: usize,
+        normals: usize,
+    },
+    #[error("{what}: a coordinate is not finite")]
+    NonFinite { what: &'static str },
+    #[error("{what}: a normal is zero or not finite")]
+    BadNormal { what: &'static str },
+    #[error("{what}: kd-tree: {message}")]
+    Index { what: &'static str, message: String },
+}
+
+impl MatchError {
+    pub(crate) fn config(field: &'static str, expected: &'static str) -> Self {
+        Self::Config { field, expected }
+    }
+}

@@ -1,0 +1,681 @@
+//! Point-pair features (Drost et al. 2010, "Model globally, match locally"): a hash table of
+//! every model point pair, and voting over the whole scene for (model point, rotation angle)
+//! per scene reference point. Improvements from Vidal et al. 2018 ("A method for 6D pose
+//! estimation of free-form rigid objects using point pair features on range data"): pairs no
+//! longer than the model's diameter, and each model pair also filed under the neighbouring
+//! quantisation bins its feature lies close to, so sensor noise that moves a feature across a
+//! bin edge still finds it.
+//!
+//! Feature of a pair (p1, n1), (p2, n2) with d = p2 - p1:
+//! `F = (|d|, angle(n1, d), angle(n2, d), angle(n1, n2))`, distances in mm, angles in [0, pi].
+//! Every point gets a canonical frame: translate it to the origin and rotate its normal onto
+//! +x; the partner then sits at an angle `phi` about x. A model pair and a scene pair with the
+//! same feature give the pose `x -> s + Rs^T Rx(phi_s - phi_m) Rm (x - m)`.
+
+use nalgebra::{Isometry3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use rayon::prelude::*;
+
+use crate::index::PointIndex;
+use crate::{MatchError, OrientedPoints, P3};
+
+/// Quantisation and pairing of the point-pair features.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PpfConfig {
+    /// Distance quantisation step, mm: the sampling step of model and scene. Range > 0.
+    pub distance_step_mm: f64,
+    /// Bins of each feature angle over [0, 180] deg. Default 15 (12 deg bins, as Drost).
+    /// Range 4-90.
+    pub feature_angle_bins: u32,
+    /// Bins of the rotation about the normal over a full turn. Default 30 (12 deg, as Drost).
+    /// Range 4-360.
+    pub alpha_bins: u32,
+    /// Longest pair, mm (the model's diameter: longer pairs cannot lie on one part). Range > 0.
+    pub max_pair_distance_mm: f64,
+    /// A model pair is also filed under a neighbouring bin when its feature lies within this
+    /// fraction of a bin of the edge (Vidal's neighbour voting). Default 0.25, range 0-0.5
+    /// (0 = off).
+    pub spread: f64,
+    /// Most pairs kept per feature bin, evenly chosen. Bins of flat regions (two coplanar
+    /// normals at right angles to the pair) hold thousands of pairs that all vote alike and
+    /// say little about the pose; capping them bounds the voting time. Range >= 1.
+    pub max_pairs_per_bin: u32,
+}
+
+impl PpfConfig {
+    /// Rejects values outside the documented ranges, naming the field.
+    pub fn validate(&self) -> Result<(), MatchError> {
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        if !positive(self.distance_step_mm) {
+            return Err(MatchError::config("distance_step_mm", "expected > 0 mm"));
+        }
+        if !positive(self.max_pair_distance_mm) {
+            return Err(MatchError::config(
+                "max_pair_distance_mm",
+                "expected > 0 mm",
+            ));
+        }
+        if !(4..=90).contains(&self.feature_angle_bins) {
+            return Err(MatchError::config("feature_angle_bins", "expected 4-90"));
+        }
+        if !(4..=360).contains(&self.alpha_bins) {
+            return Err(MatchError::config("alpha_bins", "expected 4-360"));
+        }
+        if !(0.0..=0.5).contains(&self.spread) {
+            return Err(MatchError::config("spread", "expected 0-0.5"));
+        }
+        if self.max_pairs_per_bin == 0 {
+            return Err(MatchError::config("max_pairs_per_bin", "expected >= 1"));
+        }
+        let bins = self.distance_bins() as u64 * u64::from(self.feature_angle_bins).pow(3);
+        if bins > 50_000_000 {
+            return Err(MatchError::config(
+                "distance_step_mm",
+                "too small for the pair distance: more than 50 million feature bins",
+            ));
+        }
+        Ok(())
+    }
+
+    fn distance_bins(&self) -> u32 {
+        (self.max_pair_distance_mm / self.distance_step_mm).floor() as u32 + 1
+    }
+}
+
+/// A point's canonical frame: `x -> rotation * (x - origin)` puts the point at the origin
+/// with its normal along +x.
+#[derive(Clone, Copy, Debug)]
+struct Frame {
+    origin: Vector3<f32>,
+    rotation: Rotation3<f32>,
+}
+
+impl Frame {
+    fn new(p: &P3, n: &P3) -> Option<Self> {
+        let n = Vector3::from(*n);
+        let len = n.norm();
+        if !(len.is_finite() && len > 1e-6) {
+            return None;
+        }
+        let n = n / len;
+        let rotation = Rotation3::rotation_between(&n, &Vector3::x()).unwrap_or_else(|| {
+            // n = -x: a half-turn about z.
+            Rotation3::from_axis_angle(&Vector3::z_axis(), std::f32::consts::PI)
+        });
+        Some(Self {
+            origin: Vector3::from(*p),
+            rotation,
+        })
+    }
+
+    /// Angle of `q` about +x in this frame, radians in (-pi, pi].
+    fn phi(&self, q: &P3) -> f32 {
+        let v = self.rotation * (Vector3::from(*q) - self.origin);
+        v.z.atan2(v.y)
+    }
+}
+
+/// The feature of a pair, or None for coincident points or undefined normals.
+fn feature(p1: &P3, n1: &P3, p2: &P3, n2: &P3) -> Option<[f32; 4]> {
+    let d = Vector3::from(*p2) - Vector3::from(*p1);
+    let dist = d.norm();
+    if dist.is_nan() || dist <= 1e-6 {
+        return None;
+    }
+    let d = d / dist;
+    let (a, b) = (Vector3::from(*n1), Vector3::from(*n2));
+    let angle = |u: &Vector3<f32>, v: &Vector3<f32>| u.dot(v).clamp(-1.0, 1.0).acos();
+    Some([dist, angle(&a, &d), angle(&b, &d), angle(&a, &b)])
+}
+
+/// One model pair filed in the table: the first point's index and the partner's angle.
+#[derive(Clone, Copy, Debug)]
+struct Entry {
+    point: u32,
+    phi: f32,
+}
+
+/// The model's point-pair table.
+#[derive(Clone, Debug)]
+pub struct PpfModel {
+    config: PpfConfig,
+    frames: Vec<Frame>,
+    /// `entries[offsets[k]..offsets[k + 1]]` are the pairs with key `k`.
+    offsets: Vec<u32>,
+    entries: Vec<Entry>,
+    distance_bins: u32,
+}
+
+/// A pose voted for by one scene reference point.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Vote {
+    /// Model -> scene.
+    pub pose: Isometry3<f64>,
+    /// Votes of the peak (model pairs that agree).
+    pub votes: u32,
+    /// The scene reference point (index into the scene points).
+    pub reference: u32,
+}
+
+/// How the scene is searched.
+#[derive(Clone, Debug, PartialEq)]
+pub struct VotingConfig {
+    /// Every `reference_stride`-th scene point is a reference point. Default 2 (Drost: 5;
+    /// piles need more to find every part). Range 1-100.
+    pub reference_stride: usize,
+    /// Peaks kept per reference point (a reference point on a part touching another can
+    /// carry both). Default 3, range 1-20.
+    pub peaks_per_reference: usize,
+    /// A secondary peak is kept when it has at least this fraction of the reference point's
+    /// best peak's votes. Default 0.6, range 0-1.
+    pub secondary_peak_ratio: f64,
+}
+
+impl Default for VotingConfig {
+    fn default() -> Self {
+        Self {
+            reference_stride: 2,
+            peaks_per_reference: 3,
+            secondary_peak_ratio: 0.6,
+        }
+    }
+}
+
+impl VotingConfig {
+    /// Rejects values outside the documented ranges, naming the field.
+    pub fn validate(&self) -> Result<(), MatchError> {
+        if !(1..=100).contains(&self.reference_stride) {
+            return Err(MatchError::config("reference_stride", "expected 1-100"));
+        }
+        if !(1..=20).contains(&self.peaks_per_reference) {
+            return Err(MatchError::config("peaks_per_reference", "expected 1-20"));
+        }
+        if !(0.0..=1.0).contains(&self.secondary_peak_ratio) {
+            return Err(MatchError::config("secondary_peak_ratio", "expected 0-1"));
+        }
+        Ok(())
+    }
+}
+
+impl PpfModel {
+    /// Files every ordered pair of model points no farther apart than the pair limit.
+    pub fn new(model: &OrientedPoints, config: PpfConfig) -> Result<Self, MatchError> {
+        config.validate()?;
+        model.check("model")?;
+        if model.len() < 3 {
+            return Err(MatchError::TooFewPoints {
+                what: "model",
+                points: model.len(),
+                needed: 3,
+            });
+        }
+        if model.len() > 20_000 {
+            return Err(MatchError::TooManyPoints {
+                what: "model",
+                points: model.len(),
+                limit: 20_000,
+            });
+        }
+        let frames: Vec<Frame> = model
+            .points
+            .iter()
+            .zip(&model.normals)
+            .map(|(p, n)| Frame::new(p, n))
+            .collect::<Option<_>>()
+            .ok_or(MatchError::BadNormal { what: "model" })?;
+        let distance_bins = config.distance_bins();
+        let quant = Quantiser::new(&config);
+        let max_d = config.max_pair_distance_mm as f32;
+        // (key, entry) per first point, in point order: deterministic on any thread count.
+        let per_point: Vec<Vec<(u32, Entry)>> = (0..model.len())
+            .into_par_iter()
+            .map(|i| {
+                let (p1, n1) = (&model.points[i], &model.normals[i]);
+                let mut out = Vec::new();
+                let mut keys = Vec::with_capacity(16);
+                for j in 0..model.len() {
+                    if i == j {
+                        continue;
+                    }
+                    let Some(f) = feature(p1, n1, &model.points[j], &model.normals[j]) else {
+                        continue;
+                    };
+                    if f[0] > max_d {
+                        continue;
+                    }
+                    let phi = frames[i].phi(&model.points[j]);
+                    quant.spread_keys(&f, config.spread as f32, &mut keys);
+                    out.extend(keys.iter().map(|&k| {
+                        (
+                            k,
+                            Entry {
+                                point: i as u32,
+                                phi,
+                            },
+                        )
+                    }));
+                }
+                out
+            })
+            .collect();
+        let n_keys = quant.key_count() as usize;
+        let mut counts = vec![0u32; n_keys + 1];
+        for (k, _) in per_point.iter().flatten() {
+            counts[*k as usize + 1] += 1;
+        }
+        for k in 0..n_keys {
+            counts[k + 1] += counts[k];
+        }
+        let offsets = counts.clone();
+        let total = offsets[n_keys] as usize;
+        let mut entries = vec![Entry { point: 0, phi: 0.0 }; total];
+        let mut cursor = counts;
+        for (k, e) in per_point.into_iter().flatten() {
+            let slot = &mut cursor[k as usize];
+            entries[*slot as usize] = e;
+            *slot += 1;
+        }
+        let (offsets, entries) = cap_bins(&offsets, &entries, config.max_pairs_per_bin as usize);
+        Ok(Self {
+            config,
+            frames,
+            offsets,
+            entries,
+            distance_bins,
+        })
+    }
+
+    /// Model points in the table.
+    pub fn len(&self) -> usize {
+        self.frames.len()
+    }
+
+    /// Whether the model has no points (never true for a built model).
+    pub fn is_empty(&self) -> bool {
+        self.frames.is_empty()
+    }
+
+    /// Pairs filed (with neighbour-bin copies).
+    pub fn entries(&self) -> usize {
+        self.entries.len()
+    }
+
+    /// Votes over the whole scene: each reference point pairs with every scene point within
+    /// the pair limit and votes for (model point, rotation); its best peaks become poses.
+    /// Returned in reference order, peaks best first.
+    pub fn vote(
+        &self,
+        scene: &OrientedPoints,
+        index: &PointIndex,
+        config: &VotingConfig,
+    ) -> Result<Vec<Vote>, MatchError> {
+        config.validate()?;
+        scene.check("scene")?;
+        let quant = Quantiser::new(&self.config);
+        let n_alpha = self.config.alpha_bins as usize;
+        let alpha_step = std::f32::consts::TAU / self.config.alpha_bins as f32;
+        let max_d = self.config.max_pair_distance_mm as f32;
+        let n_model = self.frames.len();
+        let references: Vec<usize> = (0..scene.len()).step_by(config.reference_stride).collect();
+        let votes: Vec<Vec<Vote>> = references
+            .par_iter()
+            .map_init(
+                || (vec![0u32; n_model * n_alpha], Vec::<u32>::new(), Vec::new()),
+                |(acc, touched, neighbours), &r| {
+                    let (ps, ns) = (&scene.points[r], &scene.normals[r]);
+                    let Some(frame) = Frame::new(ps, ns) else {
+                        return Vec::new();
+                    };
+                    index.within_into(ps, max_d, neighbours);
+                    for &k in neighbours.iter() {
+                        let k = k as usize;
+                        if k == r {
+                            continue;
+                        }
+                        let Some(f) = feature(ps, ns, &scene.points[k], &scene.normals[k]) else {
+                            continue;
+                        };
+                        let Some(key) = quant.key(&f) else {
+                            continue;
+                        };
+                        let (lo, hi) = (
+                            self.offsets[key as usize] as usize,
+                            self.offsets[key as usize + 1] as usize,
+                        );
+                        if lo == hi {
+                            continue;
+                        }
+                        let phi_s = frame.phi(&scene.points[k]);
+                        for e in &self.entries[lo..hi] {
+                            let alpha = (phi_s - e.phi).rem_euclid(std::f32::consts::TAU);
+                            let a = ((alpha / alpha_step) as usize).min(n_alpha - 1);
+                            let slot = e.point as usize * n_alpha + a;
+                            if acc[slot] == 0 {
+                                touched.push(slot as u32);
+                            }
+                            acc[slot] += 1;
+                        }
+                    }
+                    let peaks = self.peaks(acc, touched, config, n_alpha);
+                    for &s in touched.iter() {
+                        acc[s as usize] = 0;
+                    }
+                    touched.clear();
+                    peaks
+                        .into_iter()
+                        .map(|(slot, votes)| {
+                            let (point, a) = (slot / n_alpha, slot % n_alpha);
+                            let alpha = (a as f32 + 0.5) * alpha_step;
+                            Vote {
+                                pose: self.pose(&frame, point, alpha),
+                                votes,
+                                reference: r as u32,
+                            }
+                        })
+                        .collect()
+                },
+            )
+            .collect();
+        Ok(votes.into_iter().flatten().collect())
+    }
+
+    /// The best peaks of one accumulator: local maxima over the rotation bins (circular) of
+    /// a model point, best first, ties by slot.
+    fn peaks(
+        &self,
+        acc: &[u32],
+        touched: &[u32],
+        config: &VotingConfig,
+        n_alpha: usize,
+    ) -> Vec<(usize, u32)> {
+        let mut cands: Vec<(usize, u32)> = touched
+            .iter()
+            .map(|&s| s as usize)
+            .filter(|&s| {
+                let (base, a) = (s - s % n_alpha, s % n_alpha);
+                let v = acc[s];
+                let prev = acc[base + (a + n_alpha - 1) % n_alpha];
+                let next = acc[base + (a + 1) % n_alpha];
+                // Plateaus keep their first bin.
+                v > prev && v >= next
+            })
+            .map(|s| (s, acc[s]))
+            .collect();
+        cands.sort_unstable_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+        let Some(&(_, best)) = cands.first() else {
+            return Vec::new();
+        };
+        let floor = (config.secondary_peak_ratio * f64::from(best)).ceil() as u32;
+        cands
+            .into_iter()
+            .take(config.peaks_per_reference)
+            .filter(|&(_, v)| v >= floor.max(1))
+            .collect()
+    }
+
+    /// `x -> s + Rs^T Rx(alpha) Rm (x - m)`.
+    fn pose(&self, scene: &Frame, model_point: usize, alpha: f32) -> Isometry3<f64> {
+        let m = &self.frames[model_point];
+        let rx = Rotation3::from_axis_angle(&Vector3::x_axis(), alpha);
+        let r = scene.rotation.inverse() * rx * m.rotation;
+        let t = scene.origin - r * m.origin;
+        let r64: Rotation3<f64> = nalgebra::convert(r);
+        Isometry3::from_parts(
+            Translation3::new(f64::from(t.x), f64::from(t.y), f64::from(t.z)),
+            UnitQuaternion::from_rotation_matrix(&r64),
+        )
+    }
+
+    /// The number of distance bins (for diagnostics).
+    pub fn distance_bins(&self) -> u32 {
+        self.distance_bins
+    }
+}
+
+/// Keeps at most `cap` entries per bin, evenly spaced through the bin's list.
+fn cap_bins(offsets: &[u32], entries: &[Entry], cap: usize) -> (Vec<u32>, Vec<Entry>) {
+    let mut new_offsets = Vec::with_capacity(offsets.len());
+    let mut kept = Vec::with_capacity(entries.len());
+    new_offsets.push(0u32);
+    for w in offsets.windows(2) {
+        let bin = &entries[w[0] as usize..w[1] as usize];
+        if bin.len() <= cap {
+            kept.extend_from_slice(bin);
+        } else {
+            kept.extend((0..cap).map(|k| bin[k * bin.len() / cap]));
+        }
+        new_offsets.push(kept.len() as u32);
+    }
+    (new_offsets, kept)
+}
+
+/// Feature -> table key.
+struct Quantiser {
+    step: f32,
+    angle_step: f32,
+    distance_bins: u32,
+    angle_bins: u32,
+}
+
+impl Quantiser {
+    fn new(c: &PpfConfig) -> Self {
+        Self {
+            step: c.distance_step_mm as f32,
+            angle_step: std::f32::consts::PI / c.feature_angle_bins as f32,
+            distance_bins: c.distance_bins(),
+            angle_bins: c.feature_angle_bins,
+        }
+    }
+
+    fn key_count(&self) -> u32 {
+        self.distance_bins * self.angle_bins.pow(3)
+    }
+
+    /// Continuous bin coordinates of a feature.
+    fn coords(&self, f: &[f32; 4]) -> [f32; 4] {
+        [
+            f[0] / self.step,
+            f[1] / self.angle_step,
+            f[2] / self.angle_step,
+            f[3] / self.angle_step,
+        ]
+    }
+
+    fn limits(&self) -> [u32; 4] {
+        [
+            self.distance_bins,
+            self.angle_bins,
+            self.angle_bins,
+            self.angle_bins,
+        ]
+    }
+
+    fn pack(&self, b: [u32; 4]) -> u32 {
+        ((b[0] * self.angle_bins + b[1]) * self.angle_bins + b[2]) * self.angle_bins + b[3]
+    }
+
+    fn key(&self, f: &[f32; 4]) -> Option<u32> {
+        let c = self.coords(f);
+        let lim = self.limits();
+        let mut b = [0u32; 4];
+        for k in 0..4 {
+            let v = c[k].floor();
+            if v.is_nan() || v < 0.0 {
+                return None;
+            }
+            // Angles of exactly pi fall in the last bin.
+            let v = if k > 0 { v.min((lim[k] - 1) as f32) } else { v };
+            if v as u32 >= lim[k] {
+                return None;
+            }
+            b[k] = v as u32;
+        }
+        Some(self.pack(b))
+    }
+
+    /// The feature's own key and, per dimension within `spread` of a bin edge, the
+    /// neighbouring bin's (Cartesian product over dimensions).
+    fn spread_keys(&self, f: &[f32; 4], spread: f32, out: &mut Vec<u32>) {
+        out.clear();
+        let c = self.coords(f);
+        let lim = self.limits();
+        let mut options: [[Option<u32>; 2]; 4] = [[None; 2]; 4];
+        for k in 0..4 {
+            let floor = c[k].floor();
+            let v = if k > 0 {
+                floor.min((lim[k] - 1) as f32)
+            } else {
+                floor
+            };
+            if v.is_nan() || v < 0.0 || v as u32 >= lim[k] {
+                return;
+            }
+            let b = v as u32;
+            let frac = c[k] - floor;
+            options[k][0] = Some(b);
+            options[k][1] = if frac < spread && b > 0 {
+                Some(b - 1)
+            } else if frac > 1.0 - spread && b + 1 < lim[k] {
+                Some(b + 1)
+            } else {
+                None
+            };
+        }
+        for a in options[0].iter().flatten() {
+            for b in options[1].iter().flatten() {
+                for c in options[2].iter().flatten() {
+                    for d in options[3].iter().flatten() {
+                        out.push(self.pack([*a, *b, *c, *d]));
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+    use crate::poses::{PoseClustering, Symmetries, cluster_poses};
+    use nalgebra::Point3;
+
+    /// An L of two rectangles plus a small tab (no rigid symmetry), sampled every `step` mm
+    /// with outward normals.
+    pub(crate) fn l_part(step: f32) -> OrientedPoints {
+        let mut points = Vec::new();
+        let mut normals = Vec::new();
+        let grid = |a: f32, b: f32| {
+            let (na, nb) = ((a / step) as usize, (b / step) as usize);
+            (0..=na).flat_map(move |i| (0..=nb).map(move |j| (i as f32 * step, j as f32 * step)))
+        };
+        for (x, y) in grid(60.0, 30.0) {
+            points.push([x, y, 0.0]);
+            normals.push([0.0, 0.0, 1.0]);
+        }
+        for (y, z) in grid(30.0, 20.0) {
+            points.push([0.0, y, z + step]);
+            normals.push([-1.0, 0.0, 0.0]);
+        }
+        for (x, z) in grid(15.0, 10.0) {
+            points.push([40.0 + x, 0.0, z + step]);
+            normals.push([0.0, -1.0, 0.0]);
+        }
+        OrientedPoints { points, normals }
+    }
+
+    pub(crate) fn moved(m: &OrientedPoints, pose: &Isometry3<f64>) -> OrientedPoints {
+        let p = |q: &P3| {
+            let r = pose * Point3::new(f64::from(q[0]), f64::from(q[1]), f64::from(q[2]));
+            [r.x as f32, r.y as f32, r.z as f32]
+        };
+        let n = |q: &P3| {
+            let r = pose.rotation * Vector3::new(f64::from(q[0]), f64::from(q[1]), f64::from(q[2]));
+            [r.x as f32, r.y as f32, r.z as f32]
+        };
+        OrientedPoints {
+            points: m.points.iter().map(p).collect(),
+            normals: m.normals.iter().map(n).collect(),
+        }
+    }
+
+    pub(crate) fn pose(t: [f64; 3], axis: [f64; 3], deg: f64) -> Isometry3<f64> {
+        Isometry3::from_parts(
+            Translation3::new(t[0], t[1], t[2]),
+            UnitQuaternion::from_axis_angle(
+                &nalgebra::Unit::new_normalize(Vector3::from(axis)),
+                deg.to_radians(),
+            ),
+        )
+    }
+
+    #[test]
+    fn votes_recover_two_instances() {
+        let model = l_part(3.0);
+        let config = PpfConfig {
+            distance_step_mm: 3.0,
+            feature_angle_bins: 15,
+            alpha_bins: 30,
+            max_pair_distance_mm: 75.0,
+            spread: 0.25,
+            max_pairs_per_bin: 1000,
+        };
+        let table = PpfModel::new(&model, config).unwrap();
+        assert!(table.entries() > model.len() * (model.len() - 1));
+        let t1 = pose([100.0, 20.0, 5.0], [0.2, 1.0, 0.3], 70.0);
+        let t2 = pose([-90.0, 40.0, 0.0], [1.0, -0.5, 0.2], 150.0);
+        let (a, b) = (moved(&model, &t1), moved(&model, &t2));
+        let scene = OrientedPoints {
+            points: [a.points, b.points].concat(),
+            normals: [a.normals, b.normals].concat(),
+        };
+        let index = PointIndex::new("scene", &scene.points).unwrap();
+        let votes = table
+            .vote(&scene, &index, &VotingConfig::default())
+            .unwrap();
+        let centre = Point3::new(30.0, 15.0, 5.0);
+        let clusters = cluster_poses(
+            &votes,
+            &centre,
+            &Symmetries::none(),
+            &PoseClustering {
+                translation_mm: 7.5,
+                rotation_deg: 24.0,
+            },
+        )
+        .unwrap();
+        for truth in [t1, t2] {
+            let found = clusters.iter().take(2).any(|c| {
+                (c.pose * centre - truth * centre).norm() < 3.0
+                    && c.pose.rotation.angle_to(&truth.rotation).to_degrees() < 10.0
+            });
+            assert!(found, "{truth:?} not among {:?}", &clusters[..2]);
+        }
+        // Same answer again (determinism across runs and threads).
+        let again = table
+            .vote(&scene, &index, &VotingConfig::default())
+            .unwrap();
+        assert_eq!(votes, again);
+    }
+
+    #[test]
+    fn bad_configs_are_named() {
+        let model = l_part(5.0);
+        let mut c = PpfConfig {
+            distance_step_mm: 0.0,
+            feature_angle_bins: 15,
+            alpha_bins: 30,
+            max_pair_distance_mm: 75.0,
+            spread: 0.25,
+            max_pairs_per_bin: 1000,
+        };
+        let e = PpfModel::new(&model, c.clone()).unwrap_err();
+        assert!(e.to_string().contains("distance_step_mm"), "{e}");
+        c.distance_step_mm = 3.0;
+        c.spread = 0.7;
+        assert!(
+            PpfModel::new(&model, c)
+                .unwrap_err()
+                .to_string()
+                .contains("spread")
+        );
+    }
+}

@@ -1,0 +1,613 @@
+//! The sensor's view: the scene as a range grid seen from the sensor, and a model rendered
+//! into the same grid at a hypothesis pose. A hypothesis is judged only on the model surface
+//! the sensor could see in that pose (a model point facing away, or hidden behind the model's
+//! own surface, says nothing), cell by cell against what the sensor saw:
+//!
+//! | scene along the cell's ray              | verdict      | meaning                                   |
+//! |-----------------------------------------|--------------|-------------------------------------------|
+//! | a surface within tolerance of the model | explained    | support for the hypothesis                |
+//! | a surface in front of the model         | occluded     | hidden by something else: no evidence     |
+//! | a surface behind the model              | free space   | the sensor saw through where the model    |
+//! |                                         |              | puts material: a contradiction            |
+//! | nothing measured                        | missing      | the model surface the sensor should have  |
+//! |                                         |              | seen is not there (shadow or absent)      |
+//!
+//! This is the visible-surface discrepancy of Hodan et al. (2016, BOP's VSD) turned into a
+//! verification score, and the free-space / occlusion reasoning of Aldoma et al. 2012
+//! ("A global hypotheses verification method for 3D object recognition").
+
+use nalgebra::{Isometry3, Point3, Vector3};
+
+use crate::{MatchError, OrientedPoints, P3};
+
+/// Where the sensor is. "Closeness" below is a coordinate that grows towards the sensor, mm.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Sensor {
+    /// Looking down `-up` from far away: line scanners over a belt or a bin, where rays are
+    /// (close to) parallel.
+    Orthographic {
+        /// Unit vector towards the sensor.
+        up: Vector3<f64>,
+    },
+    /// A camera at `position` looking along `axis` (depth and structured-light cameras).
+    Perspective {
+        position: Point3<f64>,
+        /// Unit optical axis (from the camera into the scene).
+        axis: Vector3<f64>,
+    },
+}
+
+impl Sensor {
+    /// An orthographic sensor above `up` (normalised; must be non-zero).
+    pub fn orthographic(up: [f64; 3]) -> Result<Self, MatchError> {
+        let v = Vector3::from(up);
+        if !(v.norm().is_finite() && v.norm() > 1e-9) {
+            return Err(MatchError::config(
+                "up",
+                "expected a finite, non-zero vector",
+            ));
+        }
+        Ok(Self::Orthographic { up: v.normalize() })
+    }
+
+    /// A camera at `position` whose axis points at `target`.
+    pub fn perspective(position: [f64; 3], target: [f64; 3]) -> Result<Self, MatchError> {
+        let o = Point3::from(position);
+        let axis = Point3::from(target) - o;
+        if !(axis.norm().is_finite() && axis.norm() > 1e-9) {
+            return Err(MatchError::config(
+                "viewpoint",
+                "the camera must not sit on the scene's centre",
+            ));
+        }
+        Ok(Self::Perspective {
+            position: o,
+            axis: axis.normalize(),
+        })
+    }
+
+    /// Unit vector from `p` towards the sensor.
+    pub fn towards(&self, p: &Point3<f64>) -> Vector3<f64> {
+        match self {
+            Sensor::Orthographic { up } => *up,
+            Sensor::Perspective { position, .. } => (position - p).normalize(),
+        }
+    }
+
+    fn basis(&self) -> (Vector3<f64>, Vector3<f64>, Vector3<f64>) {
+        let a = match self {
+            Sensor::Orthographic { up } => *up,
+            Sensor::Perspective { axis, .. } => *axis,
+        };
+        let helper = if a.x.abs() < 0.9 {
+            Vector3::x()
+        } else {
+            Vector3::y()
+        };
+        let e1 = a.cross(&helper).normalize();
+        let e2 = a.cross(&e1);
+        (e1, e2, a)
+    }
+}
+
+/// Projects points into grid coordinates.
+#[derive(Clone, Debug)]
+struct Projector {
+    sensor: Sensor,
+    e1: Vector3<f64>,
+    e2: Vector3<f64>,
+    a: Vector3<f64>,
+    /// Cell size: mm (orthographic) or tangent units (perspective).
+    cell: f64,
+}
+
+impl Projector {
+    /// `(column, row)` as continuous cell coordinates and closeness, mm; None behind a camera.
+    fn project(&self, p: &Point3<f64>) -> Option<(f64, f64, f64)> {
+        match &self.sensor {
+            Sensor::Orthographic { .. } => {
+                let v = p.coords;
+                Some((
+                    v.dot(&self.e1) / self.cell,
+                    v.dot(&self.e2) / self.cell,
+                    v.dot(&self.a),
+                ))
+            }
+            Sensor::Perspective { position, .. } => {
+                let q = p - position;
+                let z = q.dot(&self.a);
+                if z <= 1e-6 {
+                    return None;
+                }
+                Some((
+                    q.dot(&self.e1) / z / self.cell,
+                    q.dot(&self.e2) / z / self.cell,
+                    -z,
+                ))
+            }
+        }
+    }
+
+    /// Cell edge length in mm at a given closeness.
+    fn cell_mm(&self, closeness: f64) -> f64 {
+        match self.sensor {
+            Sensor::Orthographic { .. } => self.cell,
+            Sensor::Perspective { .. } => self.cell * (-closeness).max(1e-6),
+        }
+    }
+}
+
+/// The scene as the sensor saw it: per grid cell the closeness of the nearest surface.
+#[derive(Clone, Debug)]
+pub struct RangeGrid {
+    projector: Projector,
+    /// Grid origin in cell coordinates.
+    col0: i64,
+    row0: i64,
+    cols: usize,
+    rows: usize,
+    /// Closeness per cell, mm; NaN where nothing was measured.
+    near: Vec<f32>,
+    /// Whether the nearest surface in the cell is background (belt, bin floor or wall).
+    background: Vec<bool>,
+    /// Unit normal of the nearest surface in the cell (NaN when unknown).
+    normal: Vec<[f32; 3]>,
+    max_normal_cos: f64,
+    /// Depth tolerance, mm.
+    tolerance_mm: f64,
+}
+
+/// How a hypothesis is compared with the range grid.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ViewConfig {
+    /// Grid cell, mm (at the scene's typical distance for a camera): about the scan's point
+    /// spacing. Range > 0.
+    pub cell_mm: f64,
+    /// A model surface within this distance along the ray of the scene's is explained, mm:
+    /// noise plus residual misalignment. Range > 0.
+    pub tolerance_mm: f64,
+    /// Model surface steeper than this angle to the ray is not rendered (the grid cannot
+    /// resolve it), degrees. Default 75, range 10-89.
+    pub max_incidence_deg: f64,
+    /// A scene surface explains the model only where their normals differ by less than this,
+    /// degrees (where the scene has a normal). Default 45, range 1-180 (180 = off).
+    pub max_normal_angle_deg: f64,
+}
+
+impl ViewConfig {
+    /// Rejects values outside the documented ranges, naming the field.
+    pub fn validate(&self) -> Result<(), MatchError> {
+        if !(self.cell_mm.is_finite() && self.cell_mm > 0.0) {
+            return Err(MatchError::config("cell_mm", "expected > 0 mm"));
+        }
+        if !(self.tolerance_mm.is_finite() && self.tolerance_mm > 0.0) {
+            return Err(MatchError::config("tolerance_mm", "expected > 0 mm"));
+        }
+        if !(10.0..=89.0).contains(&self.max_incidence_deg) {
+            return Err(MatchError::config(
+                "max_incidence_deg",
+                "expected 10-89 deg",
+            ));
+        }
+        if !(1.0..=180.0).contains(&self.max_normal_angle_deg) {
+            return Err(MatchError::config(
+                "max_normal_angle_deg",
+                "expected 1-180 deg",
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// A hypothesis judged against the view, in grid cells.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ViewScore {
+    /// Cells the model covers as the sensor would see it alone in this pose.
+    pub visible: u32,
+    /// Cells where the scene surface agrees with the model.
+    pub explained: u32,
+    /// Cells where the scene surface lies in front of the model (hidden by something).
+    pub occluded: u32,
+    /// Cells where the sensor saw a surface behind the model: contradictions.
+    pub free_space: u32,
+    /// Cells with no measurement at all.
+    pub missing: u32,
+    /// Cells where a scene surface lies at the model's depth but faces another way (counted
+    /// in neither `explained` nor `free_space`).
+    pub wrong_normal: u32,
+    /// Sum over explained cells of the fit weight `1 - (depth error / tolerance)^2` (a cell
+    /// explained only by a neighbour counts a quarter): how well, not only how much, the
+    /// scene confirms the model.
+    pub fit: f64,
+    /// Edges of the model's silhouette (cell sides between a rendered cell and an empty
+    /// one), and those where the scene's surface carries on past the edge at the model's
+    /// depth with the model's orientation (and is not belt or bin): a real part's outline
+    /// coincides with the scene's depth edges, a pose laid across other surfaces does not.
+    pub outline_edges: u32,
+    pub outline_continued: u32,
+    /// The explained cells (grid indices, ascending) and their fit weights, for the scene
+    /// explanation.
+    pub explained_cells: Vec<u32>,
+    pub explained_fit: Vec<f32>,
+    /// The occluded cells whose occluder is not background (a part lies on this one).
+    pub covered: u32,
+}
+
+impl ViewScore {
+    /// Share of the visible surface the scene confirms: an estimate of the part's visible
+    /// fraction (BOP's visib_fract) when the pose is right.
+    pub fn visibility(&self) -> f64 {
+        ratio(self.explained, self.visible)
+    }
+
+    /// Share of the visible surface contradicted by free space.
+    pub fn free_space_ratio(&self) -> f64 {
+        ratio(self.free_space, self.visible)
+    }
+
+    /// Share of the visible surface covered by something other than background.
+    pub fn covered_ratio(&self) -> f64 {
+        ratio(self.covered, self.visible)
+    }
+
+    /// Mean fit weight of the explained cells (0 when none).
+    pub fn mean_fit(&self) -> f64 {
+        if self.explained == 0 {
+            0.0
+        } else {
+            self.fit / f64::from(self.explained)
+        }
+    }
+
+    /// Share of the outline where the scene's surface carries on past it.
+    pub fn continued_ratio(&self) -> f64 {
+        ratio(self.outline_continued, self.outline_edges)
+    }
+}
+
+fn ratio(a: u32, b: u32) -> f64 {
+    if b == 0 {
+        0.0
+    } else {
+        f64::from(a) / f64::from(b)
+    }
+}
+
+impl RangeGrid {
+    /// Projects the scene (`background[i]` marks belt/floor/wall points; `normals[i]`, when
+    /// given, is point i's unit normal, NaN where undefined) into a grid.
+    pub fn new(
+        sensor: Sensor,
+        config: &ViewConfig,
+        points: &[P3],
+        background: &[bool],
+        normals: Option<&[P3]>,
+    ) -> Result<Self, MatchError> {
+        config.validate()?;
+        let n_normals = normals.map_or(points.len(), <[P3]>::len);
+        if points.len() != background.len() || points.len() != n_normals {
+            return Err(MatchError::Mismatch {
+                what: "range grid",
+                points: points.len(),
+                normals: background.len().min(n_normals),
+            });
+        }
+        if points.is_empty() {
+            return Err(MatchError::TooFewPoints {
+                what: "scene",
+                points: 0,
+                needed: 1,
+            });
+        }
+        let (e1, e2, a) = sensor.basis();
+        // A camera's cell is an angle: the configured size at the scene's median distance.
+        let cell = match &sensor {
+            Sensor::Orthographic { .. } => config.cell_mm,
+            Sensor::Perspective { position, .. } => {
+                let mut z: Vec<f64> = points
+                    .iter()
+                    .step_by((points.len() / 1000).max(1))
+                    .map(|p| (to_point(p) - position).dot(&a))
+                    .filter(|z| *z > 0.0)
+                    .collect();
+                if z.is_empty() {
+                    return Err(MatchError::config(
+                        "viewpoint",
+                        "the whole scene lies behind the camera",
+                    ));
+                }
+                z.sort_by(f64::total_cmp);
+                config.cell_mm / z[z.len() / 2]
+            }
+        };
+        let projector = Projector {
+            sensor,
+            e1,
+            e2,
+            a,
+            cell,
+        };
+        let projected: Vec<Option<(i64, i64, f64)>> = points
+            .iter()
+            .map(|p| {
+                projector
+                    .project(&to_point(p))
+                    .map(|(u, v, c)| (u.floor() as i64, v.floor() as i64, c))
+            })
+            .collect();
+        let mut bounds: Option<[i64; 4]> = None;
+        for (c, r, _) in projected.iter().flatten() {
+            let b = bounds.get_or_insert([*c, *c, *r, *r]);
+            b[0] = b[0].min(*c);
+            b[1] = b[1].max(*c);
+            b[2] = b[2].min(*r);
+            b[3] = b[3].max(*r);
+        }
+        let Some([c0, c1, r0, r1]) = bounds else {
+            return Err(MatchError::config(
+                "viewpoint",
+                "the whole scene lies behind the camera",
+            ));
+        };
+        let (cols, rows) = ((c1 - c0 + 1) as usize, (r1 - r0 + 1) as usize);
+        if cols.saturating_mul(rows) > 100_000_000 {
+            return Err(MatchError::config(
+                "cell_mm",
+                "too small for the scene's extent: more than 100 million grid cells",
+            ));
+        }
+        let mut near = vec![f32::NAN; cols * rows];
+        let mut bg = vec![false; cols * rows];
+        let mut normal = vec![[f32::NAN; 3]; cols * rows];
+        for (i, proj) in projected.iter().enumerate() {
+            let Some((c, r, closeness)) = proj else {
+                continue;
+            };
+            let k = (r - r0) as usize * cols + (c - c0) as usize;
+            let v = *closeness as f32;
+            if near[k].is_nan() || v > near[k] {
+                near[k] = v;
+                bg[k] = background[i];
+                normal[k] = normals.map_or([f32::NAN; 3], |n| n[i]);
+            }
+        }
+        Ok(Self {
+            projector,
+            col0: c0,
+            row0: r0,
+            cols,
+            rows,
+            near,
+            background: bg,
+            normal,
+            max_normal_cos: config.max_normal_angle_deg.to_radians().cos(),
+            tolerance_mm: config.tolerance_mm,
+        })
+    }
+
+    /// Cells in the grid.
+    pub fn cells(&self) -> usize {
+        self.near.len()
+    }
+
+    /// The sensor this grid was built for.
+    pub fn sensor(&self) -> &Sensor {
+        &self.projector.sensor
+    }
+
+    fn cell_index(&self, c: i64, r: i64) -> Option<usize> {
+        let (dc, dr) = (c - self.col0, r - self.row0);
+        (dc >= 0 && dr >= 0 && (dc as usize) < self.cols && (dr as usize) < self.rows)
+            .then(|| dr as usize * self.cols + dc as usize)
+    }
+
+    /// Renders `model` (dense points with outward normals, model frame) at `pose` as the
+    /// sensor would see it alone: per cell the nearest model surface facing the sensor, in
+    /// cell order.
+    fn render(
+        &self,
+        model: &OrientedPoints,
+        pose: &Isometry3<f64>,
+        max_incidence_cos: f64,
+    ) -> Vec<RenderedCell> {
+        let mut cells: Vec<RenderedCell> = Vec::with_capacity(model.len());
+        for (p, n) in model.points.iter().zip(&model.normals) {
+            let q = pose * to_point(p);
+            let normal =
+                pose.rotation * Vector3::new(f64::from(n[0]), f64::from(n[1]), f64::from(n[2]));
+            let cos = normal.dot(&self.projector.sensor.towards(&q));
+            if cos < max_incidence_cos {
+                continue;
+            }
+            let Some((u, v, closeness)) = self.projector.project(&q) else {
+                continue;
+            };
+            // Within one cell a slanted surface spans this much depth.
+            let slope = (1.0 - cos * cos).max(0.0).sqrt() / cos;
+            cells.push(RenderedCell {
+                col: u.floor() as i64,
+                row: v.floor() as i64,
+                closeness,
+                slack: slope * self.projector.cell_mm(closeness),
+                normal,
+            });
+        }
+        // Nearest surface per cell: sort by cell, then closeness descending.
+        cells.sort_by(|a, b| {
+            (a.row, a.col)
+                .cmp(&(b.row, b.col))
+                .then(b.closeness.total_cmp(&a.closeness))
+        });
+        cells.dedup_by(|next, kept| next.col == kept.col && next.row == kept.row);
+        cells
+    }
+
+    /// Whether the scene's normal in cell `k` agrees with `normal` (true where unknown).
+    fn normal_agrees(&self, k: usize, normal: &Vector3<f64>) -> bool {
+        let n = self.normal[k];
+        if !n.iter().all(|c| c.is_finite()) {
+            return true;
+        }
+        let n = Vector3::new(f64::from(n[0]), f64::from(n[1]), f64::from(n[2]));
+        n.dot(normal) >= self.max_normal_cos
+    }
+
+    /// Scores `model` (dense points with outward normals, model frame) at `pose`.
+    pub fn score(
+        &self,
+        model: &OrientedPoints,
+        pose: &Isometry3<f64>,
+        config: &ViewConfig,
+    ) -> ViewScore {
+        let cos_limit = config.max_incidence_deg.to_radians().cos();
+        let rendered = self.render(model, pose, cos_limit);
+        let mut s = ViewScore {
+            visible: rendered.len() as u32,
+            ..ViewScore::default()
+        };
+        let tol = self.tolerance_mm;
+        for cell in &rendered {
+            let (c, r, m) = (cell.col, cell.row, cell.closeness);
+            let t = tol + cell.slack;
+            // Best fit among the neighbouring cells (one cell of lateral slack).
+            let mut best_fit: Option<f64> = None;
+            let (mut wrong_normal, mut front, mut behind, mut any) = (false, false, false, false);
+            let mut front_is_object = false;
+            for dr in -1..=1 {
+                for dc in -1..=1 {
+                    let Some(k) = self.cell_index(c + dc, r + dr) else {
+                        continue;
+                    };
+                    let v = f64::from(self.near[k]);
+                    if v.is_nan() {
+                        continue;
+                    }
+                    any = true;
+                    let dz = v - m;
+                    if dz.abs() <= t {
+                        if self.normal_agrees(k, &cell.normal) {
+                            let weight = if dr == 0 && dc == 0 { 1.0 } else { 0.25 };
+                            let fit = weight * (1.0 - (dz / t).powi(2));
+                            best_fit = Some(best_fit.map_or(fit, |b: f64| b.max(fit)));
+                        } else {
+                            wrong_normal = true;
+                        }
+                    } else if dz > 0.0 {
+                        front = true;
+                        if dr == 0 && dc == 0 {
+                            front_is_object = !self.background[k];
+                        }
+                    } else {
+                        behind = true;
+                    }
+                }
+            }
+            if let Some(fit) = best_fit {
+                s.explained += 1;
+                s.fit += fit;
+                if let Some(k) = self.cell_index(c, r) {
+                    s.explained_cells.push(k as u32);
+                    s.explained_fit.push(fit as f32);
+                }
+            } else if wrong_normal {
+                s.wrong_normal += 1;
+            } else if front {
+                s.occluded += 1;
+                s.covered += u32::from(front_is_object);
+            } else if behind {
+                s.free_space += 1;
+            } else if !any {
+                s.missing += 1;
+            }
+        }
+        self.outline(&rendered, &mut s);
+        s
+    }
+
+    /// Counts the silhouette's edges and those the scene's surface carries on past (two
+    /// cells out, at the edge cell's depth within the tolerance, same orientation, not
+    /// background).
+    fn outline(&self, rendered: &[RenderedCell], s: &mut ViewScore) {
+        let has = |c: i64, r: i64| {
+            rendered
+                .binary_search_by(|e| (e.row, e.col).cmp(&(r, c)))
+                .is_ok()
+        };
+        let tol = self.tolerance_mm;
+        for cell in rendered {
+            for (dc, dr) in [(1, 0), (-1, 0), (0, 1), (0, -1)] {
+                if has(cell.col + dc, cell.row + dr) {
+                    continue;
+                }
+                s.outline_edges += 1;
+                let t = tol + cell.slack;
+                let carries = (1..=2).all(|k| {
+                    self.cell_index(cell.col + k * dc, cell.row + k * dr)
+                        .is_some_and(|i| {
+                            let v = f64::from(self.near[i]);
+                            !self.background[i]
+                                && (v - cell.closeness).abs() <= t
+                                && self.normal_agrees(i, &cell.normal)
+                        })
+                });
+                s.outline_continued += u32::from(carries);
+            }
+        }
+    }
+
+    /// Indices of the model points the sensor would see at `pose` (facing it and not behind
+    /// the model's own nearer surface by more than the tolerance): the points to align.
+    pub fn visible_model_points(
+        &self,
+        model: &OrientedPoints,
+        pose: &Isometry3<f64>,
+        config: &ViewConfig,
+    ) -> Vec<u32> {
+        let cos_limit = config.max_incidence_deg.to_radians().cos();
+        let rendered = self.render(model, pose, cos_limit);
+        let front = |c: i64, r: i64| {
+            rendered
+                .binary_search_by(|e| (e.row, e.col).cmp(&(r, c)))
+                .ok()
+                .map(|i| (rendered[i].closeness, rendered[i].slack))
+        };
+        let mut out = Vec::new();
+        for (i, (p, n)) in model.points.iter().zip(&model.normals).enumerate() {
+            let q = pose * to_point(p);
+            let normal =
+                pose.rotation * Vector3::new(f64::from(n[0]), f64::from(n[1]), f64::from(n[2]));
+            if normal.dot(&self.projector.sensor.towards(&q)) < 0.0 {
+                continue;
+            }
+            let Some((u, v, closeness)) = self.projector.project(&q) else {
+                continue;
+            };
+            let visible = match front(u.floor() as i64, v.floor() as i64) {
+                Some((nearest, slack)) => closeness >= nearest - self.tolerance_mm - slack,
+                // Steeper than the rendering limit but facing the sensor: keep it.
+                None => true,
+            };
+            if visible {
+                out.push(i as u32);
+            }
+        }
+        out
+    }
+}
+
+/// One cell of a rendered model: the nearest model surface in it.
+#[derive(Clone, Copy, Debug)]
+struct RenderedCell {
+    col: i64,
+    row: i64,
+    /// mm, grows towards the sensor.
+    closeness: f64,
+    /// Depth a slanted surface spans within the cell, mm.
+    slack: f64,
+    /// Outward unit normal, scene frame.
+    normal: Vector3<f64>,
+}
+
+fn to_point(p: &P3) -> Point3<f64> {
+    Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]))
+}

@@ -1,0 +1,230 @@
+//! Scale-free parameters: what binpick measures on the model and on every scan, and the
+//! lengths it derives from them when a parameter is left on auto. The thesis notes (4.3) that
+//! its parameters must grow with the object; here they grow on their own.
+//!
+//! Measured:
+//! - the **model's diameter** `d` (largest distance between two of its points) and the area of
+//!   the surface one view of it shows;
+//! - the **scan's point spacing** `s` (the side of the square each point covers, from the
+//!   distance to its 8th-nearest neighbour, median over a sample) and its **gap** `g` (that
+//!   distance itself: what must be bridged to connect a line scanner's lines).
+//!
+//! Derived (every length scales exactly with a uniformly scaled input):
+//!
+//! | value                 | rule                                                        |
+//! |-----------------------|-------------------------------------------------------------|
+//! | working resolution w  | `resolution_mm`, or max(s, d / 100), on a 2^(1/16) ladder    |
+//! | support distance      | `support.distance_mm`, or 1.5 w                             |
+//! | connectivity          | 1.5 max(w, g) (support patches, clusters)                   |
+//! | sampling step         | max(`sampling_step_diameters` d, `min_sampling_step_resolutions` w) |
+//! | normal radius         | max(`normal_radius_steps` step, `min_normal_radius_resolutions` w) |
+//! | view cell             | `cell_resolutions` w                                        |
+//! | view tolerance        | `tolerance_cells` cell                                      |
+//! | part points           | visible area of one part / w^2 (cluster and support bounds) |
+
+use serde::{Deserialize, Serialize};
+
+use binpick_cloud::Point;
+use binpick_match::PointIndex;
+
+use crate::error::{Result, input};
+use crate::params::Params;
+pub use crate::result::DerivedScale;
+
+/// Points sampled to measure a cloud's spacing.
+const SPACING_SAMPLES: usize = 2000;
+/// The spacing is measured at this neighbour (the 8 around a point of a grid).
+const SPACING_NEIGHBOUR: usize = 8;
+/// Working resolution never finer than this fraction of the model's diameter.
+const MIN_RESOLUTION_DIAMETERS: f64 = 0.01;
+/// Steps of the resolution ladder per octave: scans whose spacings differ by less than a
+/// step share one prepared model.
+const LADDER_STEPS_PER_OCTAVE: f64 = 16.0;
+
+/// A cloud's point spacing.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Spacing {
+    /// Side of the square one point covers, mm.
+    pub spacing_mm: f64,
+    /// Median distance to the 8th-nearest neighbour, mm.
+    pub gap_mm: f64,
+}
+
+/// Measures `points`' spacing on a strided sample; None for fewer than 9 distinct points.
+pub fn measure_spacing(points: &[Point]) -> Result<Option<Spacing>> {
+    if points.len() <= SPACING_NEIGHBOUR {
+        return Ok(None);
+    }
+    let index = PointIndex::new("cloud", points).map_err(|e| input("cloud", e.to_string()))?;
+    let step = (points.len() / SPACING_SAMPLES).max(1);
+    let mut gaps: Vec<f64> = Vec::with_capacity(SPACING_SAMPLES);
+    for p in points.iter().step_by(step) {
+        let d = index.kth_nearest_distinct(p, SPACING_NEIGHBOUR);
+        if let Some(d) = d {
+            gaps.push(f64::from(d));
+        }
+    }
+    if gaps.is_empty() {
+        return Ok(None);
+    }
+    gaps.sort_by(f64::total_cmp);
+    let gap_mm = gaps[gaps.len() / 2];
+    if !(gap_mm > 0.0 && gap_mm.is_finite()) {
+        return Ok(None);
+    }
+    // k neighbours within r on a surface sampled at density 1/s^2: k = pi r^2 / s^2.
+    let spacing_mm = gap_mm * (std::f64::consts::PI / SPACING_NEIGHBOUR as f64).sqrt();
+    Ok(Some(Spacing { spacing_mm, gap_mm }))
+}
+
+/// `v` rounded onto the 2^(1/16) ladder (exact under scaling by powers of two).
+fn on_ladder(v: f64) -> f64 {
+    (2f64).powf((v.log2() * LADDER_STEPS_PER_OCTAVE).round() / LADDER_STEPS_PER_OCTAVE)
+}
+
+/// What the part looks like to the scale rules.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PartSize {
+    /// Largest distance between two model points, mm.
+    pub diameter_mm: f64,
+    /// Area of the surface one view of the part shows, mm^2 (a scan model: all of it; a
+    /// mesh: half its surface).
+    pub view_area_mm2: f64,
+}
+
+impl DerivedScale {
+    /// Derives every value from the part, the scan's spacing (None: the resolution is given
+    /// or nothing could be measured) and `params`.
+    pub fn derive(part: &PartSize, scan: Option<Spacing>, params: &Params) -> Result<Self> {
+        let d = part.diameter_mm;
+        let resolution_mm = match (params.preprocess.resolution_mm, scan) {
+            (Some(r), _) => r,
+            (None, Some(s)) => on_ladder(s.spacing_mm.max(MIN_RESOLUTION_DIAMETERS * d)),
+            (None, None) => on_ladder(MIN_RESOLUTION_DIAMETERS * d),
+        };
+        if !(resolution_mm.is_finite() && resolution_mm > 0.0) {
+            return Err(input(
+                "scene",
+                format!("cannot derive a resolution (got {resolution_mm} mm)"),
+            ));
+        }
+        let gap = scan.map_or(resolution_mm, |s| on_ladder(s.gap_mm));
+        let wide = resolution_mm.max(gap);
+        let v = &params.voting;
+        let sampling_step_mm =
+            (v.sampling_step_diameters * d).max(v.min_sampling_step_resolutions * resolution_mm);
+        let normal_radius_mm = (v.normal_radius_steps * sampling_step_mm)
+            .max(v.min_normal_radius_resolutions * resolution_mm);
+        let cell_mm = params.verify.cell_resolutions * resolution_mm;
+        Ok(Self {
+            model_diameter_mm: d,
+            part_view_area_mm2: part.view_area_mm2,
+            scan_spacing_mm: scan.map(|s| s.spacing_mm),
+            scan_gap_mm: scan.map(|s| s.gap_mm),
+            resolution_mm,
+            connect_mm: 1.5 * wide,
+            support_distance_mm: params.preprocess.support.distance(resolution_mm),
+            sampling_step_mm,
+            normal_radius_mm,
+            cell_mm,
+            tolerance_mm: params.verify.tolerance_cells * cell_mm,
+            part_points: part.view_area_mm2 / (resolution_mm * resolution_mm),
+        })
+    }
+
+    /// One line for logs.
+    pub fn summary(&self) -> String {
+        let measured = match (self.scan_spacing_mm, self.scan_gap_mm) {
+            (Some(s), Some(g)) => format!("scan spacing {s:.3} mm (gap {g:.3} mm), "),
+            _ => String::new(),
+        };
+        format!(
+            "{measured}model diameter {:.1} mm -> resolution {:.3} mm, sampling step {:.2} mm, \
+             normal radius {:.2} mm, view cell {:.2} mm, tolerance {:.2} mm, support distance {:.2} mm",
+            self.model_diameter_mm,
+            self.resolution_mm,
+            self.sampling_step_mm,
+            self.normal_radius_mm,
+            self.cell_mm,
+            self.tolerance_mm,
+            self.support_distance_mm
+        )
+    }
+
+    /// The key of the model preparation these values need.
+    pub(crate) fn model_key(&self) -> (u64, u64) {
+        (
+            self.resolution_mm.to_bits(),
+            self.sampling_step_mm.to_bits(),
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn grid_spacing_is_measured() {
+        // A 1 x 1 mm grid: 8th neighbour at sqrt(2), spacing ~ 0.89 (pi/8 correction).
+        let pts: Vec<Point> = (0..100)
+            .flat_map(|i| (0..100).map(move |j| [i as f32, j as f32, 0.0]))
+            .collect();
+        let s = measure_spacing(&pts).unwrap().unwrap();
+        assert!((s.gap_mm - 2f64.sqrt()).abs() < 1e-5, "{s:?}");
+        // Scaling the cloud by 2 scales both exactly.
+        let big: Vec<Point> = pts.iter().map(|p| [2.0 * p[0], 2.0 * p[1], 0.0]).collect();
+        let b = measure_spacing(&big).unwrap().unwrap();
+        assert_eq!(b.gap_mm, 2.0 * s.gap_mm);
+        assert_eq!(b.spacing_mm, 2.0 * s.spacing_mm);
+        assert!(measure_spacing(&pts[..5]).unwrap().is_none());
+    }
+
+    #[test]
+    fn derived_values_scale_exactly() {
+        let params = Params::default();
+        let part = PartSize {
+            diameter_mm: 71.3,
+            view_area_mm2: 2500.0,
+        };
+        let scan = Spacing {
+            spacing_mm: 0.61,
+            gap_mm: 0.97,
+        };
+        let a = DerivedScale::derive(&part, Some(scan), &params).unwrap();
+        for k in [2.0, 0.5] {
+            let p2 = PartSize {
+                diameter_mm: part.diameter_mm * k,
+                view_area_mm2: part.view_area_mm2 * k * k,
+            };
+            let s2 = Spacing {
+                spacing_mm: scan.spacing_mm * k,
+                gap_mm: scan.gap_mm * k,
+            };
+            let b = DerivedScale::derive(&p2, Some(s2), &params).unwrap();
+            assert_eq!(b.resolution_mm, k * a.resolution_mm);
+            assert_eq!(b.sampling_step_mm, k * a.sampling_step_mm);
+            assert_eq!(b.normal_radius_mm, k * a.normal_radius_mm);
+            assert_eq!(b.cell_mm, k * a.cell_mm);
+            assert_eq!(b.tolerance_mm, k * a.tolerance_mm);
+            assert_eq!(b.connect_mm, k * a.connect_mm);
+            assert_eq!(b.part_points, a.part_points);
+        }
+        // A given resolution wins over the measured one.
+        let mut fixed = Params::default();
+        fixed.preprocess.resolution_mm = Some(3.0);
+        let f = DerivedScale::derive(&part, Some(scan), &fixed).unwrap();
+        assert_eq!(f.resolution_mm, 3.0);
+        // Small parts are not processed finer than 1/100 of their diameter.
+        let coarse = DerivedScale::derive(
+            &part,
+            Some(Spacing {
+                spacing_mm: 0.05,
+                gap_mm: 0.08,
+            }),
+            &params,
+        )
+        .unwrap();
+        assert!(coarse.resolution_mm >= 0.7 * 0.713 && coarse.resolution_mm <= 0.75);
+    }
+}

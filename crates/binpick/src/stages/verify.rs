@@ -1,0 +1,235 @@
+//! Scene voting, step 2: verification. Each hypothesis is refined by ICP (PCL, through the
+//! bridge) on the part of the model surface the sensor can see in that pose, then rendered
+//! into the sensor's view of the scene and judged cell by cell: explained, occluded, free
+//! space or missing (see `binpick_match::view`). The thesis's validators (3.1.1, 3.1.2) are
+//! computed for every survivor on the same visible surface.
+
+use nalgebra::{Isometry3, Point3, Vector3};
+
+use binpick_cloud::Point;
+use binpick_match::{RangeGrid, Sensor, ViewConfig, ViewScore};
+use binpick_pcl::{IcpParams, IndexedCloud};
+
+use crate::error::{Result, input, pcl};
+use crate::params::{SensorConfig, VerifyConfig};
+use crate::result::{DerivedScale, ViewCheck};
+use crate::stages::hypotheses::{VotingModel, matching};
+use crate::validate::{NearestIndex, euclidean_score, outlier_percent};
+
+/// A camera is assumed at the origin when the scene's centre lies this many scene extents
+/// away from it (a cloud written in its camera's frame).
+const CAMERA_FRAME_EXTENTS: f64 = 1.0;
+/// Most model points one ICP aligns.
+const ICP_POINTS: usize = 800;
+/// The thesis's outlier distance relative to its resolution (4 mm at 1 mm, 4.3 #12).
+const OUTLIER_RESOLUTIONS: f64 = 4.0;
+/// Orthographic sensors are placed this far along `up` for normal orientation, mm.
+const FAR_MM: f64 = 1e7;
+
+/// Where the sensor was: the configured one, or for `auto` a camera at the origin when the
+/// scene lies far out along one side of it, else a scanner far above along `up`.
+pub(crate) fn resolve_sensor(cfg: &SensorConfig, up: [f64; 3], points: &[Point]) -> Result<Sensor> {
+    let bad = |e| input("sensor", format!("{e}"));
+    match cfg {
+        SensorConfig::Above => Sensor::orthographic(up).map_err(bad),
+        SensorConfig::Camera { position_mm } => {
+            Sensor::perspective(*position_mm, centroid(points)).map_err(bad)
+        }
+        SensorConfig::Auto => {
+            let c = centroid(points);
+            let extent = binpick_cloud::PointCloud::new(points.to_vec())
+                .bounds()
+                .map_or(0.0, |b| f64::from(b.diagonal()));
+            let far = Vector3::from(c).norm() > CAMERA_FRAME_EXTENTS * extent.max(1e-9);
+            if far {
+                Sensor::perspective([0.0; 3], c).map_err(bad)
+            } else {
+                Sensor::orthographic(up).map_err(bad)
+            }
+        }
+    }
+}
+
+/// A point to orient surface normals towards (the camera, or far above).
+pub(crate) fn viewpoint(sensor: &Sensor, points: &[Point]) -> [f64; 3] {
+    match sensor {
+        Sensor::Perspective { position, .. } => [position.x, position.y, position.z],
+        Sensor::Orthographic { up } => {
+            let c = Point3::from(centroid(points)) + up * FAR_MM;
+            [c.x, c.y, c.z]
+        }
+    }
+}
+
+fn centroid(points: &[Point]) -> [f64; 3] {
+    binpick_cloud::centroid(points).unwrap_or([0.0; 3])
+}
+
+/// The view grid's settings at this scale.
+pub(crate) fn view_config(scale: &DerivedScale, cfg: &VerifyConfig) -> ViewConfig {
+    ViewConfig {
+        cell_mm: scale.cell_mm,
+        tolerance_mm: scale.tolerance_mm,
+        max_incidence_deg: cfg.max_incidence_deg,
+        max_normal_angle_deg: cfg.max_normal_angle_deg,
+    }
+}
+
+/// The preprocessed scene as the engine uses it.
+pub(crate) struct SceneSurface {
+    /// Every preprocessed point (support included) ...
+    pub points: Vec<Point>,
+    /// ... its normal (NaN where undefined) ...
+    pub normals: Vec<[f32; 3]>,
+    /// ... and whether it is support (belt, floor, wall).
+    pub support: Vec<bool>,
+    /// The points that are not support.
+    pub world: Vec<Point>,
+}
+
+/// Everything verification reads, built once per scene.
+pub(crate) struct Verifier<'a> {
+    pub grid: RangeGrid,
+    pub view: ViewConfig,
+    /// The scene without its support, at the working resolution: the ICP target.
+    world: IndexedCloud,
+    world_index: NearestIndex,
+    model: &'a VotingModel,
+    scale: &'a DerivedScale,
+    cfg: &'a VerifyConfig,
+}
+
+/// The thesis's validators of a pose, on the visible model surface.
+pub(crate) struct ThesisScores {
+    /// Euclidean score, mm^2 (3.1.1).
+    pub euclidean: f64,
+    /// Percent of outliers (3.1.2).
+    pub outliers_pct: f64,
+}
+
+impl<'a> Verifier<'a> {
+    pub(crate) fn new(
+        sensor: Sensor,
+        scene: &SceneSurface,
+        model: &'a VotingModel,
+        scale: &'a DerivedScale,
+        cfg: &'a VerifyConfig,
+    ) -> Result<Self> {
+        let view = view_config(scale, cfg);
+        let grid = RangeGrid::new(
+            sensor,
+            &view,
+            &scene.points,
+            &scene.support,
+            Some(&scene.normals),
+        )
+        .map_err(matching("view grid"))?;
+        Ok(Self {
+            grid,
+            view,
+            world: IndexedCloud::new(&scene.world).map_err(pcl("scene upload"))?,
+            world_index: NearestIndex::new(&scene.world)
+                .map_err(|e| input("scene", e.to_string()))?,
+            model,
+            scale,
+            cfg,
+        })
+    }
+
+    /// The model points the sensor would see at `pose`, at most `max` (evenly strided).
+    fn visible(&self, pose: &Isometry3<f64>, max: usize) -> Vec<Point> {
+        let idx = self
+            .grid
+            .visible_model_points(&self.model.dense, pose, &self.view);
+        let step = idx.len().div_ceil(max.max(1)).max(1);
+        idx.iter()
+            .step_by(step)
+            .map(|&i| self.model.dense.points[i as usize])
+            .collect()
+    }
+
+    /// Two ICP passes on the visible surface: coarse (correspondences within two sampling
+    /// steps), then fine (within two tolerances). Returns the pose and the last ICP outcome.
+    pub(crate) fn refine(
+        &self,
+        pose: &Isometry3<f64>,
+    ) -> Result<(Isometry3<f64>, Option<binpick_pcl::IcpOutcome>)> {
+        let mut pose = *pose;
+        let mut last = None;
+        let w = self.scale.resolution_mm;
+        for distance in [
+            2.0 * self.scale.sampling_step_mm,
+            2.0 * self.scale.tolerance_mm,
+        ] {
+            let src = self.visible(&pose, ICP_POINTS);
+            if src.len() < 10 {
+                break;
+            }
+            let out = self
+                .world
+                .icp(
+                    &src,
+                    &IcpParams {
+                        initial: binpick_pcl::row_major(&pose),
+                        max_correspondence_distance: distance,
+                        max_iterations: self.cfg.refine_iterations,
+                        transformation_epsilon: 1e-6 * w * w,
+                        batch_correspondences: true,
+                        relative_mse: 1e-4,
+                    },
+                )
+                .map_err(pcl("refinement ICP"))?;
+            if let Some(p) = out.pose() {
+                pose = p;
+            }
+            last = Some(out);
+        }
+        Ok((pose, last))
+    }
+
+    /// The view verdict of `pose`.
+    pub(crate) fn score(&self, pose: &Isometry3<f64>) -> ViewScore {
+        self.grid.score(&self.model.dense, pose, &self.view)
+    }
+
+    /// The thesis's validators on the visible surface: the Euclidean score and the percent of
+    /// outliers at an outlier distance of 4 resolutions (4 mm at the thesis's 1 mm).
+    pub(crate) fn thesis_scores(&self, pose: &Isometry3<f64>) -> ThesisScores {
+        // In the model frame, so the validators place them by `pose` themselves.
+        let visible = self.visible(pose, usize::MAX);
+        ThesisScores {
+            euclidean: euclidean_score(&self.world_index, &visible, pose),
+            outliers_pct: outlier_percent(
+                &self.world_index,
+                &visible,
+                pose,
+                OUTLIER_RESOLUTIONS * self.scale.resolution_mm,
+            ),
+        }
+    }
+
+    /// Cells of the model's typical view (its view area over the cell area).
+    pub(crate) fn typical_cells(&self) -> f64 {
+        self.scale.part_view_area_mm2 / (self.scale.cell_mm * self.scale.cell_mm)
+    }
+}
+
+/// A view verdict as reported in a detection.
+pub(crate) fn view_check(s: &ViewScore) -> ViewCheck {
+    let share = |n: u32| {
+        if s.visible == 0 {
+            0.0
+        } else {
+            f64::from(n) / f64::from(s.visible)
+        }
+    };
+    ViewCheck {
+        visibility: share(s.explained),
+        free_space: share(s.free_space),
+        covered: share(s.covered),
+        missing: share(s.missing),
+        continued: s.continued_ratio(),
+        fit: s.mean_fit(),
+        visible_cells: s.visible,
+    }
+}
