@@ -3,6 +3,7 @@
 #include <pcl/console/print.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -29,6 +30,14 @@ void check_positive(double value, const char* name) {
   if (!(std::isfinite(value) && value > 0.0)) {
     fail(name, " must be a positive finite number, got ", value);
   }
+}
+
+void throw_interrupted(const char* where) {
+  throw std::runtime_error(std::string(kInterruptedMarker) + where);
+}
+
+void check_interrupt(const char* where) {
+  if (interrupt_requested()) throw_interrupted(where);
 }
 
 PointCloudXYZ::Ptr to_cloud(rust::Slice<const float> xyz, const char* what, bool allow_empty) {
@@ -120,6 +129,9 @@ std::unique_ptr<Cloud> upload_cloud(rust::Slice<const float> xyz) {
 // therefore gives the same neighbours, distances and order as a search at the smaller radius.
 // Other queries (foreign clouds, larger radii, bounded counts, k-NN) go to the kd-tree.
 class CachedNeighbourhoods : public pcl::search::Search<pcl::PointXYZ> {
+  // Points searched between two polls of `interrupt_requested` (a few milliseconds).
+  static constexpr std::size_t kInterruptPollPoints = 4096;
+
  public:
   // Builds the lists on `threads` threads (each a contiguous range of points, joined in
   // order); returns null if they would hold more than `max_entries` neighbours.
@@ -135,11 +147,17 @@ class CachedNeighbourhoods : public pcl::search::Search<pcl::PointXYZ> {
     const std::size_t n = cloud->size();
     threads = static_cast<unsigned>(std::clamp<std::size_t>(threads, 1, std::max<std::size_t>(1, n / 1000)));
     std::vector<Part> parts(threads);
+    // Set by the calling thread when the Rust caller asks to stop; helpers see it too.
+    std::atomic<bool> stop{false};
     auto fill = [&](unsigned t) {
       Part& part = parts[t];
       pcl::Indices idx;
       std::vector<float> d2;
       for (std::size_t i = n * t / threads; i < n * (t + 1) / threads; ++i) {
+        if (i % kInterruptPollPoints == 0) {
+          if (t == 0 && interrupt_requested()) stop.store(true, std::memory_order_relaxed);
+          if (stop.load(std::memory_order_relaxed)) return;
+        }
         tree->radiusSearch((*cloud)[i], radius, idx, d2);
         if (part.neighbours.size() + idx.size() > max_entries) {
           part.too_many = true;
@@ -154,6 +172,7 @@ class CachedNeighbourhoods : public pcl::search::Search<pcl::PointXYZ> {
     for (unsigned t = 1; t < threads; ++t) helpers.emplace_back(fill, t);
     fill(0);
     for (auto& h : helpers) h.join();
+    if (stop.load(std::memory_order_relaxed)) throw_interrupted("neighbourhood search");
 
     std::shared_ptr<CachedNeighbourhoods> cache(new CachedNeighbourhoods(cloud, tree, radius));
     auto& c = *cache;

@@ -56,6 +56,7 @@ class BatchCorrespondenceEstimation
 
   void determineCorrespondences(pcl::Correspondences& correspondences,
                                 double max_distance) override {
+    check_interrupt("ICP iteration");  // once per ICP iteration
     if (!initCompute()) return;
     const std::size_t n = indices_->size();
     std::vector<float> queries(n * 3);
@@ -69,13 +70,23 @@ class BatchCorrespondenceEstimation
     std::vector<float> d2(n);
     flann::Matrix<int> nn_mat(nn.data(), n, 1);
     flann::Matrix<float> d2_mat(d2.data(), n, 1);
-    flann::SearchParams params(-1, 0.0f);  // as pcl::KdTreeFLANN: exact, one core
-    index_->index->knnSearch(flann::Matrix<float>(queries.data(), n, 3), nn_mat, d2_mat, 1, params);
+    // The nearest neighbour within the correspondence distance only: a search bounded by
+    // it prunes every branch farther away, where the unbounded one (PCL's) first walks to
+    // whatever is nearest however far. Both keep the first of equally near points in the same
+    // tree order, so the correspondences kept are PCL's. FLANN's bound is exclusive and in
+    // squared float distance: one float step wider, then PCL's inclusive test in double.
     const double max_dist_sqr = max_distance * max_distance;
+    const float bound = std::nextafter(static_cast<float>(max_dist_sqr),
+                                       std::numeric_limits<float>::infinity());
+    flann::SearchParams params(-1, 0.0f);  // as pcl::KdTreeFLANN: exact, one core
+    params.max_neighbors = 1;
+    std::fill(nn.begin(), nn.end(), -1);
+    index_->index->radiusSearch(flann::Matrix<float>(queries.data(), n, 3), nn_mat, d2_mat, bound,
+                                params);
     correspondences.resize(n);
     std::size_t valid = 0;
     for (std::size_t i = 0; i < n; ++i) {
-      if (d2[i] > max_dist_sqr) continue;
+      if (nn[i] < 0 || !(d2[i] <= max_dist_sqr)) continue;
       correspondences[valid++] = pcl::Correspondence((*indices_)[i], nn[i], d2[i]);
     }
     correspondences.resize(valid);
@@ -304,6 +315,7 @@ rust::Vec<SacResult> reject_sample_consensus_sweep(rust::Slice<const float> sour
     return std::any_of(runs.begin(), runs.end(), [](const Run& r) { return r.running; });
   };
   while (running()) {
+    if (iterations % 16 == 0) check_interrupt("RANSAC threshold sweep");
     model->getSamples(iterations, selection);
     if (selection.empty()) break;
     if (!model->computeModelCoefficients(selection, coefficients)) {

@@ -125,14 +125,26 @@ class ShardedPlaneModel : public pcl::SampleConsensusModelPlane<pcl::PointXYZ> {
     }
   }
 
+  // Called inside PCL's RANSAC loop, an OpenMP region that an exception must not leave: once
+  // the caller asks to stop, every count is 0 (RANSAC then runs out its iterations at once)
+  // and `segment_plane` throws after it returns.
   std::size_t countWithinDistance(const Eigen::VectorXf& coefficients,
                                   const double threshold) const override {
+    if (interrupted() || interrupt_requested()) {
+      interrupted_.store(true, std::memory_order_relaxed);
+      return 0;
+    }
     runner_.run([&](int s) { counts_[s] = shards_[s]->countWithinDistance(coefficients, threshold); });
     return std::accumulate(counts_.begin(), counts_.end(), std::size_t{0});
   }
 
+ public:
+  // Whether the caller asked to stop during the fit (its answer is then meaningless).
+  bool interrupted() const { return interrupted_.load(std::memory_order_relaxed); }
+
  private:
   std::vector<std::shared_ptr<Plane>> shards_;
+  mutable std::atomic<bool> interrupted_{false};
   mutable ShardRunner runner_;
   mutable std::vector<std::size_t> counts_;
 };
@@ -178,7 +190,9 @@ PlaneFit segment_plane(rust::Slice<const float> xyz, float distance_threshold,
     auto model = std::make_shared<ShardedPlaneModel>(cloud, all, shards);
     pcl::RandomSampleConsensus<pcl::PointXYZ> sac(model, distance_threshold);
     sac.setMaxIterations(static_cast<int>(max_iterations));
-    if (sac.computeModel(0)) {
+    const bool found = sac.computeModel(0);
+    if (model->interrupted()) throw_interrupted("support plane fit");
+    if (found) {
       sac.getInliers(inliers.indices);
       Eigen::VectorXf coeff(model->getModelSize()), refined(model->getModelSize());
       sac.getModelCoefficients(coeff);

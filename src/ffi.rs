@@ -217,6 +217,12 @@ pub(crate) mod bridge {
         timings: ReferenceTimings,
     }
 
+    extern "Rust" {
+        /// Whether the Rust caller asked the running call to stop (`crate::set_interrupt` on
+        /// this thread); long C++ loops poll it between chunks (`check_interrupt`).
+        fn interrupt_requested() -> bool;
+    }
+
     unsafe extern "C++" {
         include!("binpick-pcl/cpp/include/binpick_pcl.h");
 
@@ -297,6 +303,10 @@ pub(crate) mod bridge {
             params: &ReferenceParams,
         ) -> Result<ReferenceResult>;
     }
+}
+
+fn interrupt_requested() -> bool {
+    crate::interrupt_requested()
 }
 
 // SAFETY: `Cloud` is immutable after construction (points + kd-tree built in `upload_cloud`)

@@ -22,7 +22,8 @@
 
 mod ffi;
 
-use std::sync::Once;
+use std::cell::RefCell;
+use std::sync::{Arc, Once};
 
 use cxx::UniquePtr;
 use ffi::bridge;
@@ -59,15 +60,50 @@ pub enum Error {
     /// A rotation with det != +1 (a reflection or a degenerate matrix; cf. PCL issue #1707).
     #[error("PCL {call}: transform is not a proper rotation (det = {det:.5})")]
     ImproperRotation { call: &'static str, det: f64 },
+    /// The caller's [`Interrupt`] asked the call to stop (`during` names the chunk loop that
+    /// noticed); its answer was thrown away.
+    #[error("PCL {call}: interrupted during {during}")]
+    Interrupted { call: &'static str, during: String },
+}
+
+/// A stop request for long bridge calls: returns true once the running call should stop (a
+/// time budget ran out, the caller cancelled). See [`set_interrupt`].
+pub type Interrupt = Arc<dyn Fn() -> bool + Send + Sync>;
+
+thread_local! {
+    static INTERRUPT: RefCell<Option<Interrupt>> = const { RefCell::new(None) };
+}
+
+/// Installs `interrupt` for the bridge calls made on this thread from now on (`None` removes
+/// it) and returns the previous one. Long calls poll it between chunks whose answers do not
+/// depend on where they are cut (ICP iterations, RANSAC iterations of the threshold sweep and
+/// of support plane fits, blocks of points of the neighbourhood search, voxel-grid tiles) and
+/// return [`Error::Interrupted`] once it says stop; a call that finishes returns the same
+/// answer as without it.
+pub fn set_interrupt(interrupt: Option<Interrupt>) -> Option<Interrupt> {
+    INTERRUPT.with(|i| i.replace(interrupt))
+}
+
+fn interrupt_requested() -> bool {
+    INTERRUPT.with(|i| i.borrow().as_ref().is_some_and(|stop| stop()))
 }
 
 /// Result alias for bridge calls.
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
+/// The prefix of the C++ side's interruption (`kInterruptedMarker` in `cpp/include/internal.h`).
+const INTERRUPTED_MARKER: &str = "binpick-interrupted: ";
+
 fn pcl_err(call: &'static str) -> impl Fn(cxx::Exception) -> Error {
-    move |e| Error::Pcl {
-        call,
-        message: e.what().to_owned(),
+    move |e| match e.what().strip_prefix(INTERRUPTED_MARKER) {
+        Some(during) => Error::Interrupted {
+            call,
+            during: during.to_owned(),
+        },
+        None => Error::Pcl {
+            call,
+            message: e.what().to_owned(),
+        },
     }
 }
 
@@ -117,7 +153,10 @@ pub fn uniform_sampling(points: &[Point], leaf: f32) -> Result<Vec<u32>> {
     bridge::uniform_sampling(flat(points), leaf).map_err(pcl_err("UniformSampling"))
 }
 
-/// Voxel-grid filter: one centroid per occupied `leaf`-sized cell (new points, ordered by cell).
+/// Voxel-grid filter (`pcl::VoxelGrid`): one centroid per occupied `leaf`-sized cell (new
+/// points, ordered by cell). A grid with more cells than PCL's 32-bit voxel index holds is
+/// filtered in tiles cut at voxel boundaries, with the cells and order PCL would give with a
+/// wider index; an error only when a coordinate is beyond 2^31 leaves from the origin.
 pub fn voxel_grid(points: &[Point], leaf: f32) -> Result<Vec<Point>> {
     init();
     bridge::voxel_grid(flat(points), leaf)

@@ -589,7 +589,9 @@ fn bad_input_is_an_error_not_a_crash() {
     assert!(
         msg(uniform_sampling(&[[0.0; 3], [1000.0; 3]], 1e-6).unwrap_err()).contains("too small")
     );
-    assert!(voxel_grid(&[[0.0; 3], [1e6; 3]], 1e-3).is_err());
+    // A grid too wide for PCL's index is tiled (see below); one beyond its coordinates is not.
+    assert_eq!(voxel_grid(&[[0.0; 3], [1e6; 3]], 1e-3).unwrap().len(), 2);
+    assert!(msg(voxel_grid(&[[0.0; 3], [1e7; 3]], 1e-3).unwrap_err()).contains("32-bit"));
     assert!(uniform_sampling(&[[0.0; 3]], -1.0).is_err());
     assert!(IndexedCloud::new(&[]).is_err());
     assert!(IndexedCloud::new(&[[f32::INFINITY, 0.0, 0.0]]).is_err());
@@ -708,4 +710,87 @@ fn the_bridge_survives_calls_from_several_threads() {
             }
         });
     });
+}
+
+/// A voxel grid wider than PCL's 32-bit voxel index is filtered in tiles: two blobs 3 m
+/// apart at a 1 mm leaf (2.7e10 cells) give exactly each blob's own voxel grid, in PCL's
+/// order (lower z first); a coordinate beyond 2^31 leaves is a clear error, not garbage.
+#[test]
+fn a_voxel_grid_too_wide_for_pcl_is_done_in_tiles() {
+    let mut rng = Rng(99);
+    let cloud = |o: f32, rng: &mut Rng| -> Vec<Point> {
+        (0..5000)
+            .map(|_| {
+                [
+                    o + rng.next() * 40.0,
+                    o + rng.next() * 30.0,
+                    o + rng.next() * 20.0,
+                ]
+            })
+            .collect()
+    };
+    let near = cloud(0.0, &mut rng);
+    let far = cloud(3000.0, &mut rng);
+    let both: Vec<Point> = far.iter().chain(&near).copied().collect();
+    let bits = |v: Vec<Point>| -> Vec<[u32; 3]> { v.iter().map(|p| p.map(f32::to_bits)).collect() };
+    let mut expected = voxel_grid(&near, 1.0).unwrap();
+    expected.extend(voxel_grid(&far, 1.0).unwrap());
+    assert_eq!(bits(voxel_grid(&both, 1.0).unwrap()), bits(expected));
+    let e = voxel_grid(&[[0.0, 0.0, 0.0], [1e30, 0.0, 0.0]], 1.0).unwrap_err();
+    assert!(e.to_string().contains("32-bit"), "{e}");
+}
+
+/// An installed interrupt stops the long calls between their chunks (an error that says so);
+/// one that never fires leaves every answer as it was.
+#[test]
+fn interrupts_stop_long_calls_and_change_no_answer() {
+    use std::sync::Arc;
+    let mut rng = Rng(5);
+    let pts: Vec<Point> = (0..60_000)
+        .map(|_| [rng.next() * 400.0, rng.next() * 300.0, rng.next() * 2.0])
+        .collect();
+    let target = IndexedCloud::new(&pts).unwrap();
+    let source: Vec<Point> = pts.iter().step_by(50).copied().collect();
+    let icp = IcpParams {
+        initial: to_mat4(&iso([0.0, 0.0, 1.0], 2.0, [1.0, 0.0, 0.0])),
+        max_correspondence_distance: 10.0,
+        max_iterations: 20,
+        transformation_epsilon: 1e-9,
+        batch_correspondences: true,
+        relative_mse: 0.0,
+    };
+    let far: Vec<Point> = [[0.0, 0.0, 0.0], [5000.0, 5000.0, 5000.0]]
+        .iter()
+        .chain(&pts[..10])
+        .copied()
+        .collect();
+    let run = || {
+        (
+            target.icp(&source, &icp).map(|o| o.transform),
+            segment_plane(&pts, 1.0, 100, 2).map(|p| p.map(|p| p.inliers.len())),
+            IndexedCloud::with_neighbourhoods(&pts, 3.0, 2).map(|c| c.len()),
+            voxel_grid(&far, 0.5).map(|v| v.len()),
+        )
+    };
+    let plain = run();
+    assert!(plain.0.is_ok() && plain.1.is_ok() && plain.2.is_ok() && plain.3.is_ok());
+    binpick_pcl::set_interrupt(Some(Arc::new(|| false)));
+    assert_eq!(run(), plain);
+    binpick_pcl::set_interrupt(Some(Arc::new(|| true)));
+    let stopped = run();
+    binpick_pcl::set_interrupt(None);
+    fn interrupted<T>(r: &Result<T, Error>) -> bool {
+        matches!(r, Err(Error::Interrupted { .. }))
+    }
+    assert!(interrupted(&stopped.0), "ICP: {:?}", stopped.0);
+    assert!(interrupted(&stopped.1), "plane fit: {:?}", stopped.1);
+    assert!(interrupted(&stopped.2), "neighbourhoods: {:?}", stopped.2);
+    assert!(interrupted(&stopped.3), "voxel tiles: {:?}", stopped.3);
+    // Other threads are not affected, and removing it restores the answers.
+    std::thread::scope(|s| {
+        binpick_pcl::set_interrupt(Some(Arc::new(|| true)));
+        assert_eq!(s.spawn(run).join().unwrap(), plain);
+        binpick_pcl::set_interrupt(None);
+    });
+    assert_eq!(run(), plain);
 }

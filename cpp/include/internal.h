@@ -70,12 +70,27 @@ void check_grid(const PointCloudXYZ& cloud, float leaf, const char* what);
 
 void check_positive(double value, const char* name);
 
+// Throws binpick's interruption marker when the Rust caller asked the running call to stop
+// (time budget or cancellation: `binpick_pcl::set_interrupt` on the calling thread). Long
+// calls poll it between chunks whose answers do not depend on where they are cut: an
+// interrupted call's answer is thrown away, a finished one is the same as without polling.
+// Only ever called on the calling thread and outside OpenMP regions (an exception must not
+// leave one: PCL's RANSAC loop is one even when it runs on one thread).
+void check_interrupt(const char* where);
+
+// Throws the interruption marker unconditionally (for loops that noticed the request inside
+// an OpenMP region, where they cannot throw, and stopped early).
+[[noreturn]] void throw_interrupted(const char* where);
+
+// The message prefix `check_interrupt` throws with (src/lib.rs maps it to Error::Interrupted).
+inline constexpr const char* kInterruptedMarker = "binpick-interrupted: ";
+
 // pcl::UniformSampling at `leaf` (filters.cpp): the input indices of the kept points, ascending.
 // Shared by the bridge's uniform_sampling and the reference pipeline.
 std::vector<std::uint32_t> uniform_sampling_indices(const PointCloudXYZ::Ptr& cloud, float leaf);
 
 // pcl::VoxelGrid at `leaf` (filters.cpp): one centroid per occupied cell. `what` names the
-// caller in errors.
+// caller in errors. A grid too large for PCL's 32-bit voxel index is filtered in tiles.
 PointCloudXYZ voxel_grid_points(const PointCloudXYZ::Ptr& cloud, float leaf, const char* what);
 
 }  // namespace binpick

@@ -6,11 +6,13 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use binpick::reference::recognize_reference;
-use binpick::{Params, PointCloud, Recognition, Recognizer, Timings};
+use std::time::{Duration, Instant};
+
+use binpick::{Params, PointCloud, Recognition, RecognizeOptions, Recognizer, Timings};
 use binpick_eval::median_p95;
 use serde::Serialize;
 
-use crate::config::{ParamArgs, load_part, load_scene, log, write_json};
+use crate::config::{ParamArgs, load_part, load_scene, write_json};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -34,6 +36,28 @@ pub struct Args {
     /// per scene.
     #[arg(long, value_enum, default_value_t = BenchEngine::Rust)]
     pub pipelines: BenchEngine,
+    /// Also time `--repeat` runs per scene under a time budget of this fraction of the
+    /// scene's median unbudgeted time (e.g. 0.5), and report how long past the budget each
+    /// call returned. With `--time-budget-ms`, that budget is used instead (library engines).
+    #[arg(long, value_name = "F")]
+    pub budget_fraction: Option<f64>,
+}
+
+/// Runs under a time budget on one scene: how long past it the calls returned.
+#[derive(Serialize)]
+pub struct BudgetRuns {
+    pub scene: String,
+    pub budget_ms: f64,
+    /// Median unbudgeted total of the same scene, ms.
+    pub unbudgeted_ms: f64,
+    /// Wall-clock time from the call to its return, ms, per run.
+    pub returned_ms: Vec<f64>,
+    /// Detections returned, per run (all verified).
+    pub detections: Vec<usize>,
+    /// Where each run was stopped ("" when it finished within the budget).
+    pub stopped_in: Vec<String>,
+    /// Runs that returned within max(10 % of the budget, 50 ms) past it.
+    pub within_tolerance: usize,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -87,6 +111,7 @@ struct BenchOutput {
     threads: usize,
     scenes: Vec<SceneBench>,
     comparisons: Vec<SceneComparison>,
+    budgets: Vec<BudgetRuns>,
 }
 
 pub fn medians(runs: &[Timings]) -> StageMedians {
@@ -167,10 +192,15 @@ fn pose_differences(a: &Recognition, b: &Recognition) -> (bool, f64, f64) {
 }
 
 pub fn run(a: Args) -> Result<()> {
+    if let Some(f) = a.budget_fraction
+        && !(f.is_finite() && f > 0.0)
+    {
+        anyhow::bail!("--budget-fraction {f}: expected a positive fraction, e.g. 0.5");
+    }
     let mut params = a.params.params()?;
     if a.pipelines == BenchEngine::Both && !params.thesis_strict {
         params.thesis_strict = true;
-        log(
+        tracing::info!(
             "--pipelines both: the library runs the thesis engine thesis-strict, as the reference does",
         );
     }
@@ -192,6 +222,7 @@ pub fn run(a: Args) -> Result<()> {
         threads: recognizer.threads(),
         scenes: Vec::new(),
         comparisons: Vec::new(),
+        budgets: Vec::new(),
     };
     for scene_path in &a.scene {
         let (scene, seen_from) = load_scene(scene_path, params.units)?;
@@ -231,6 +262,21 @@ pub fn run(a: Args) -> Result<()> {
             )),
             BenchEngine::Rust => None,
         };
+        let fixed_budget = a.params.time_budget_ms.map(|b| b as f64);
+        if let (Some((_, rust_ms)), true) =
+            (&rust, a.budget_fraction.is_some() || fixed_budget.is_some())
+        {
+            let budget_ms = fixed_budget.unwrap_or(a.budget_fraction.unwrap_or(1.0) * rust_ms);
+            out.budgets.push(time_budgeted(
+                &recognizer,
+                &scene,
+                seen_from,
+                &name,
+                budget_ms,
+                *rust_ms,
+                a.repeat,
+            )?);
+        }
         if let (Some((r, rust_ms)), Some((c, ref_ms))) = (rust, reference) {
             let (same, dt, dr) = pose_differences(&r, &c);
             out.comparisons.push(SceneComparison {
@@ -270,9 +316,12 @@ pub fn run(a: Args) -> Result<()> {
             median_p95(&ratios).0
         );
     }
+    if !out.budgets.is_empty() {
+        print_budgets(&out.budgets);
+    }
     if let Some(path) = &a.json {
         write_json(path, &out)?;
-        log(&format!("wrote {}", path.display()));
+        tracing::info!("wrote {}", path.display());
     }
     Ok(())
 }
@@ -284,4 +333,82 @@ fn time_reference(
     params: &Params,
 ) -> Result<(Recognition, Vec<Timings>)> {
     time_runs(repeat, || recognize_reference(model, scene, params))
+}
+
+/// `repeat` calls under a budget of `budget_ms`, timed from the call to its return.
+fn time_budgeted(
+    recognizer: &Recognizer,
+    scene: &PointCloud,
+    seen_from: Option<[f64; 3]>,
+    name: &str,
+    budget_ms: f64,
+    unbudgeted_ms: f64,
+    repeat: usize,
+) -> Result<BudgetRuns> {
+    let budget = Duration::from_secs_f64(budget_ms.max(1.0) / 1000.0);
+    let options = RecognizeOptions::default()
+        .time_budget(budget)
+        .sensor_position_mm(seen_from);
+    let tolerance_ms = (0.1 * budget_ms).max(50.0);
+    let mut runs = BudgetRuns {
+        scene: name.to_owned(),
+        budget_ms,
+        unbudgeted_ms,
+        returned_ms: Vec::new(),
+        detections: Vec::new(),
+        stopped_in: Vec::new(),
+        within_tolerance: 0,
+    };
+    for _ in 0..repeat.max(1) {
+        let start = Instant::now();
+        let r = recognizer.recognize_with(scene, &options)?;
+        let returned = start.elapsed().as_secs_f64() * 1000.0;
+        if returned <= budget_ms + tolerance_ms {
+            runs.within_tolerance += 1;
+        }
+        runs.returned_ms.push(returned);
+        runs.detections.push(r.detections.len());
+        runs.stopped_in
+            .push(r.interrupted.map(|i| i.stage).unwrap_or_default());
+    }
+    Ok(runs)
+}
+
+fn print_budgets(budgets: &[BudgetRuns]) {
+    println!(
+        "\n{:<40} {:>10} {:>12} {:>14} {:>14} {:>12} {:>8}  stopped in",
+        "scene (time budget)",
+        "budget",
+        "unbudgeted",
+        "returned med",
+        "returned max",
+        "over max",
+        "within"
+    );
+    for b in budgets {
+        let (med, _) = median_p95(&b.returned_ms);
+        let max = b.returned_ms.iter().copied().fold(0.0, f64::max);
+        let stages: std::collections::BTreeSet<&str> = b
+            .stopped_in
+            .iter()
+            .map(|s| if s.is_empty() { "-" } else { s.as_str() })
+            .collect();
+        let stages: Vec<&str> = stages.into_iter().collect();
+        println!(
+            "{:<40} {:>10.0} {:>12.0} {:>14.1} {:>14.1} {:>12.1} {:>5}/{:<2}  {} (found {:?})",
+            b.scene,
+            b.budget_ms,
+            b.unbudgeted_ms,
+            med,
+            max,
+            max - b.budget_ms,
+            b.within_tolerance,
+            b.returned_ms.len(),
+            stages.join(", "),
+            b.detections
+        );
+    }
+    println!(
+        "(ms; returned = call to return, wall clock; within = returned at most max(10 % of the budget, 50 ms) past it)"
+    );
 }

@@ -42,7 +42,8 @@ pub struct ParamArgs {
     /// Worker threads (0 = all cores). Results do not depend on it.
     #[arg(long)]
     pub threads: Option<usize>,
-    /// Time budget per scene, milliseconds; exceeding it is an error.
+    /// Time budget per scene, milliseconds. When it runs out the parts verified so far are
+    /// returned (and written) and the command exits with code 3.
     #[arg(long, value_name = "MS")]
     pub time_budget_ms: Option<u64>,
     /// Run the thesis exactly: one part per cluster, no duplicate suppression.
@@ -117,10 +118,12 @@ pub fn load_scene(path: &Path, units: Units) -> Result<(binpick::PointCloud, Opt
         } else {
             "an organised cloud, in its camera's frame"
         };
-        log(&format!(
+        tracing::info!(
             "scene sensor at ({:.0}, {:.0}, {:.0}) mm ({why})",
-            v[0], v[1], v[2]
-        ));
+            v[0],
+            v[1],
+            v[2]
+        );
     }
     Ok((cloud, seen_from))
 }
@@ -150,11 +153,11 @@ fn log_loaded(
     } else {
         format!(", scaled from {units} to mm")
     };
-    log(&format!(
+    tracing::info!(
         "{what} {}: {} points{dropped}{scaled}",
         path.display(),
         cloud.len()
-    ));
+    );
 }
 
 /// Loads a part model (cloud or mesh, plus its sidecar), converts it to mm and logs it.
@@ -175,17 +178,12 @@ pub fn load_part(path: &Path, units: Units, params: &Params) -> Result<binpick::
     let sym = report.sidecar.as_ref().map_or(String::new(), |s| {
         format!(", {} symmetries from {}", report.symmetries, s.display())
     });
-    log(&format!(
+    tracing::info!(
         "model {}: {kind}, diameter {:.1} mm{seen}{sym}",
         path.display(),
         part.size.diameter_mm
-    ));
+    );
     Ok(part)
-}
-
-/// A log line on stderr.
-pub fn log(msg: &str) {
-    eprintln!("binpick: {msg}");
 }
 
 /// Writes `params` as TOML next to an output file: `out.json` -> `out.params.toml`.
@@ -211,6 +209,49 @@ pub fn write_params(path: &Path, params: &Params) -> Result<()> {
     .with_context(|| format!("cannot write {}", path.display()))
 }
 
+/// BOP results CSV output (`--bop-csv`) and the ids its rows carry.
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct BopArgs {
+    /// Also write the detections in BOP's results format (scene_id,im_id,obj_id,score,R,t,time;
+    /// R row-major 3x3, t in mm, model -> scan frame; score = estimated visible fraction, or
+    /// 1 - outlier share with the thesis engine; time in s).
+    #[arg(long, value_name = "FILE.csv")]
+    pub bop_csv: Option<PathBuf>,
+    /// BOP object id written in the CSV.
+    #[arg(long, default_value_t = 1, value_name = "N")]
+    pub bop_obj_id: u32,
+    /// BOP scene id written in the CSV.
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    pub bop_scene_id: u32,
+}
+
+impl BopArgs {
+    /// The ids of a scan: its image id is the number its file stem spells (BOP names images
+    /// `000042.png`), else `index`.
+    pub fn ids_for(&self, scan: &Path, index: usize) -> binpick_eval::bop::BopIds {
+        let im_id = scan
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .filter(|s| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit()))
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(index as u32);
+        binpick_eval::bop::BopIds {
+            scene_id: self.bop_scene_id,
+            im_id,
+            obj_id: self.bop_obj_id,
+        }
+    }
+}
+
+/// Writes a text file, creating parent folders.
+pub fn write_text(path: &Path, text: &str) -> Result<()> {
+    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent)
+            .with_context(|| format!("cannot create {}", parent.display()))?;
+    }
+    std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
+}
+
 /// Writes pretty JSON, creating parent folders.
 pub fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<()> {
     if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
@@ -219,4 +260,42 @@ pub fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<()> {
     }
     let text = serde_json::to_string_pretty(value)?;
     std::fs::write(path, text + "\n").with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// The frame output poses are given in (`--scanner-to-base`, `--frame-id`).
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct FrameArgs {
+    /// Give every output pose (ranked table, JSON poses and grasps) in the robot's base
+    /// frame: the scanner -> base transform as a row-major 4x4 in mm ("16 numbers", commas
+    /// or spaces), or a .toml/.json file with `scanner_to_base` (16 numbers or 4 rows of 4)
+    /// and optionally `frame_id` (README "Frames and grasps"). Pictures and the BOP CSV stay
+    /// in the scanner's frame.
+    #[arg(long, value_name = "4x4|FILE", allow_hyphen_values = true)]
+    pub scanner_to_base: Option<String>,
+    /// Name of that frame in the output (`frame_id`); default the file's `frame_id`, else
+    /// "base".
+    #[arg(long, value_name = "NAME", requires = "scanner_to_base")]
+    pub frame_id: Option<String>,
+}
+
+impl FrameArgs {
+    /// The output frame, None for the scanner's own.
+    pub fn frame(&self) -> Result<Option<binpick::OutputFrame>> {
+        let Some(value) = &self.scanner_to_base else {
+            return Ok(None);
+        };
+        let path = Path::new(value);
+        let frame = if path.is_file() {
+            binpick::OutputFrame::read(path)
+        } else {
+            binpick::OutputFrame::parse_matrix(value)
+        }
+        .with_context(|| {
+            format!("--scanner-to-base {value:?} (16 numbers, or a .toml/.json file that exists)")
+        })?;
+        Ok(Some(match &self.frame_id {
+            Some(name) => frame.named(name).context("--frame-id")?,
+            None => frame,
+        }))
+    }
 }

@@ -9,8 +9,6 @@ use binpick_eval::{EvalRun, ThesisTable, thesis_reference};
 use binpick_viz::{BarChart, Percents, Placed, PlotOptions, RenderOptions, TableRow};
 use serde::{Deserialize, Serialize};
 
-use crate::config::log;
-
 /// Detections as the renderer wants them.
 pub fn placed(detections: &[Detection]) -> Result<Vec<Placed>> {
     detections
@@ -42,12 +40,12 @@ pub fn render(
     };
     let info = binpick_viz::render_png(scene, model, &placed(detections)?, &opts, out)
         .with_context(|| format!("cannot render {}", out.display()))?;
-    log(&format!(
+    tracing::info!(
         "wrote {} ({}x{} px)",
         out.display(),
         opts.width,
         opts.height
-    ));
+    );
     let _ = info;
     Ok(())
 }
@@ -62,13 +60,13 @@ pub fn labelled_ply(
 ) -> Result<()> {
     let info = binpick_viz::write_labelled_ply(scene, model, &placed(detections)?, explain_mm, out)
         .with_context(|| format!("cannot write {}", out.display()))?;
-    log(&format!(
+    tracing::info!(
         "wrote {}: {} scene points explained by detections ({:?} per rank), {} unexplained",
         out.display(),
         info.explained.iter().sum::<usize>(),
         info.explained,
         info.unexplained
-    ));
+    );
     Ok(())
 }
 
@@ -160,10 +158,6 @@ pub fn eval_plots(dir: &Path, preset: &str, run: &EvalRun) -> Result<()> {
         &hist,
     )
     .with_context(|| format!("cannot draw {}", hist.display()))?;
-    log(&format!(
-        "wrote {} and {}",
-        table_png.display(),
-        hist.display()
-    ));
+    tracing::info!("wrote {} and {}", table_png.display(), hist.display());
     Ok(())
 }

@@ -1,4 +1,5 @@
-//! Progress on stderr: a bar on a terminal, a plain line every few items otherwise (CI logs).
+//! Progress on stderr: a bar on a terminal, an info line every tenth of the items otherwise
+//! (CI logs). Bars live in the shared [`crate::logging::multi`], so log lines print above them.
 
 use std::io::IsTerminal;
 
@@ -14,7 +15,7 @@ pub struct Progress {
 impl Progress {
     pub fn new(total: usize, label: &str) -> Self {
         let bar = std::io::stderr().is_terminal().then(|| {
-            let b = ProgressBar::new(total as u64);
+            let b = crate::logging::multi().add(ProgressBar::new(total as u64));
             if let Ok(style) = ProgressStyle::with_template(
                 "{prefix} [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta} {msg}",
             ) {
@@ -38,7 +39,7 @@ impl Progress {
                 b.set_message(msg.to_owned());
             }
             None if done % self.every == 0 || done == self.total => {
-                eprintln!("binpick: {} {done}/{}: {msg}", self.label, self.total);
+                tracing::info!("{} {done}/{}: {msg}", self.label, self.total);
             }
             None => {}
         }
@@ -47,6 +48,7 @@ impl Progress {
     pub fn finish(&self) {
         if let Some(b) = &self.bar {
             b.finish_and_clear();
+            crate::logging::multi().remove(b);
         }
     }
 }

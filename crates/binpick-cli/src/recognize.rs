@@ -5,7 +5,13 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use binpick::{RecognitionReport, Recognizer};
 
-use crate::config::{ParamArgs, load_part, load_scene, log, write_json, write_params_next_to};
+use std::io::Write;
+
+use crate::Done;
+use crate::config::{
+    BopArgs, FrameArgs, ParamArgs, load_part, load_scene, write_json, write_params_next_to,
+    write_text,
+};
 use crate::table::{print_ranked, summary};
 
 #[derive(clap::Args)]
@@ -19,9 +25,15 @@ pub struct Args {
     pub scene: PathBuf,
     #[command(flatten)]
     pub params: ParamArgs,
-    /// Write the result as JSON (schema in README); the parameters go next to it as .params.toml.
+    /// Write the result as JSON (schema/result.schema.json); the parameters go next to it as
+    /// out.params.toml. `--json -` writes the JSON to stdout instead, and the ranked table
+    /// then goes to stderr (the parameters are inside the JSON).
     #[arg(long, value_name = "out.json")]
     pub json: Option<PathBuf>,
+    #[command(flatten)]
+    pub bop: BopArgs,
+    #[command(flatten)]
+    pub frame: FrameArgs,
     /// Render the result as PNG: scanner view and oblique view, detections in their poses,
     /// labelled with their rank.
     #[arg(long, value_name = "out.png")]
@@ -30,13 +42,11 @@ pub struct Args {
     /// placed models (for CloudCompare or MeshLab).
     #[arg(long, value_name = "out.ply")]
     pub ply: Option<PathBuf>,
-    /// Print only the JSON-equivalent table, no per-cluster report.
-    #[arg(long, short)]
-    pub quiet: bool,
 }
 
-pub fn run(a: Args) -> Result<()> {
+pub fn run(a: Args) -> Result<Done> {
     let params = a.params.params()?;
+    let frame = a.frame.frame()?;
     let part = load_part(&a.model, a.params.model_units(&params), &params)?;
     let (scene, seen_from) = load_scene(&a.scene, params.units)?;
     let engine = if a.params.reference() {
@@ -44,15 +54,24 @@ pub fn run(a: Args) -> Result<()> {
     } else {
         params.stages().engine.name()
     };
+    let spinner = crate::logging::Spinner::start(&format!(
+        "recognising {}",
+        a.scene.file_name().map_or_else(
+            || a.scene.display().to_string(),
+            |n| n.to_string_lossy().into_owned()
+        )
+    ));
     let result = if a.params.reference() {
-        log("reference engine: thesis Algorithms 1/2 in C++ against PCL, one part per cluster");
+        tracing::info!(
+            "reference engine: thesis Algorithms 1/2 in C++ against PCL, one part per cluster"
+        );
         binpick::reference::recognize_reference(&part.cloud, &scene, &params)
             .context("reference recognition failed")?
     } else {
         let recognizer = Recognizer::with_part(part.clone(), params.clone())
             .context("cannot prepare the model")?;
         if let Some(m) = recognizer.model() {
-            log(&format!(
+            tracing::info!(
                 "model prepared in {:.0} ms: {} points, {} keypoints, {} FPFH radii, diameter {:.1} mm; {} thread(s)",
                 recognizer_prep_ms(&recognizer),
                 m.cloud.len(),
@@ -60,49 +79,88 @@ pub fn run(a: Args) -> Result<()> {
                 m.features.len(),
                 m.diameter_mm,
                 recognizer.threads()
-            ));
+            );
         }
         let r = recognizer
             .recognize_seen_from(&scene, seen_from)
             .context("recognition failed")?;
         if let Some(s) = &r.scale {
-            log(&format!("derived: {}", s.summary()));
+            tracing::info!("derived: {}", s.summary());
         }
         r
     };
-    log(&summary(&result));
-    if let (Some(v), false) = (&result.voting, a.quiet) {
-        log(&crate::table::voting_summary(v));
+    drop(spinner);
+    tracing::info!("{}", summary(&result));
+    if let Some(why) = &result.interrupted {
+        tracing::warn!(
+            "{why}: the {} part(s) below were verified before that; the search is incomplete",
+            result.detections.len()
+        );
     }
-    if !a.quiet {
-        for c in &result.clusters {
-            log(&format!(
-                "cluster {}: {} points: {}",
-                c.index, c.points, c.outcome
-            ));
-        }
+    if let Some(v) = &result.voting {
+        tracing::info!("{}", crate::table::voting_summary(v));
     }
-    print_ranked(&result);
-    let mut report = RecognitionReport::new(
+    for c in &result.clusters {
+        tracing::info!("cluster {}: {} points: {}", c.index, c.points, c.outcome);
+    }
+    // Pictures and the BOP CSV are drawn in the scanner's frame (the scan's); the table
+    // and the JSON in the output frame.
+    let mut scanner_report = RecognitionReport::new(
         &a.scene.display().to_string(),
         &a.model.display().to_string(),
         engine,
         &params,
         &result,
     );
-    report.model_units = a.params.model_units(&params);
-    if let Some(out) = &a.json {
-        write_json(out, &report)?;
-        let p = write_params_next_to(out, &params)?;
-        log(&format!("wrote {} and {}", out.display(), p.display()));
+    scanner_report.model_units = a.params.model_units(&params);
+    let mut report = scanner_report.clone();
+    let mut shown = result;
+    if let Some(f) = &frame {
+        shown.express_in(f);
+        report.express_in(f);
+        tracing::info!("poses in frame {:?} (--scanner-to-base)", f.frame_id);
+    }
+    let json_to_stdout = a.json.as_deref() == Some(std::path::Path::new("-"));
+    if json_to_stdout {
+        print_ranked(&mut std::io::stderr().lock(), &shown)?;
+    } else {
+        print_ranked(&mut std::io::stdout().lock(), &shown)?;
+    }
+    match &a.json {
+        Some(_) if json_to_stdout => {
+            let text = serde_json::to_string_pretty(&report)?;
+            let mut out = std::io::stdout().lock();
+            writeln!(out, "{text}").context("cannot write the JSON to stdout")?;
+        }
+        Some(out) => {
+            write_json(out, &report)?;
+            let p = write_params_next_to(out, &params)?;
+            tracing::info!("wrote {} and {}", out.display(), p.display());
+        }
+        None => {}
+    }
+    if let Some(csv) = &a.bop.bop_csv {
+        let ids = a.bop.ids_for(&a.scene, 0);
+        let mut text = String::from(binpick_eval::bop::CSV_HEADER);
+        text.push_str(&binpick_eval::bop::csv_rows(
+            ids,
+            &scanner_report.detections,
+            scanner_report.timings_ms.total_ms / 1000.0,
+        ));
+        write_text(csv, &text)?;
+        tracing::info!("wrote {} (BOP results)", csv.display());
     }
     write_pictures(
-        &report,
+        &scanner_report,
         &scene,
         &part.cloud,
         a.png.as_deref(),
         a.ply.as_deref(),
-    )
+    )?;
+    Ok(match shown.interrupted {
+        Some(_) => Done::BudgetExhausted,
+        None => Done::Complete,
+    })
 }
 
 /// PNG and PLY outputs of one result.

@@ -3,7 +3,8 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
-use binpick::RecognitionReport;
+use binpick::{Detection, RecognitionReport};
+use serde::Deserialize;
 
 use crate::config::load;
 
@@ -26,16 +27,11 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let text = std::fs::read_to_string(&a.result)
-        .with_context(|| format!("cannot read {}", a.result.display()))?;
-    let report: RecognitionReport = serde_json::from_str(&text)
-        .with_context(|| format!("{} is not a binpick result", a.result.display()))?;
+    let file = a.result.display();
+    let text = std::fs::read_to_string(&a.result).with_context(|| format!("cannot read {file}"))?;
+    let mut report = parse(&text).with_context(|| format!("{file} is not a binpick result"))?;
     if report.units != "mm" {
-        bail!(
-            "{}: units {:?}, expected \"mm\"",
-            a.result.display(),
-            report.units
-        );
+        bail!("{file}: units {:?}, expected \"mm\"", report.units);
     }
     let scene_path = a
         .scene
@@ -45,13 +41,68 @@ pub fn run(a: Args) -> Result<()> {
         .model
         .clone()
         .unwrap_or_else(|| PathBuf::from(&report.model));
-    let scene = load(&scene_path, report.params.units, "scene")
-        .context("use --scene to point at the scene cloud")?;
-    let model = load(&model_path, report.model_units, "model")
-        .context("use --model to point at the model cloud")?;
+    let scene = load(&scene_path, report.params.units, "scene").with_context(|| {
+        format!(
+            "{file} names the scene {}: use --scene to point at the scene cloud",
+            scene_path.display()
+        )
+    })?;
+    let model = load(&model_path, report.model_units, "model").with_context(|| {
+        format!(
+            "{file} names the model {}: use --model to point at the model cloud",
+            model_path.display()
+        )
+    })?;
+    // The pictures are drawn over the scan, in the scanner's frame.
+    report.express_in(&binpick::OutputFrame::scanner());
     let png = a
         .png
         .clone()
         .unwrap_or_else(|| a.result.with_extension("png"));
     crate::recognize::write_pictures(&report, &scene, &model, Some(&png), a.ply.as_deref())
+        .with_context(|| format!("cannot draw the result {file}"))
+}
+
+/// A result document; a bad detection record is named by its index and rank.
+fn parse(text: &str) -> Result<RecognitionReport> {
+    let value: serde_json::Value = serde_json::from_str(text).context("not valid JSON")?;
+    if let Some(detections) = value.get("detections").and_then(|d| d.as_array()) {
+        for (i, d) in detections.iter().enumerate() {
+            let rank = d
+                .get("rank")
+                .map_or_else(|| "no rank".to_owned(), |r| format!("rank {r}"));
+            let parsed =
+                Detection::deserialize(d).with_context(|| format!("detection {i} ({rank})"))?;
+            let t = parsed.pose.translation.vector;
+            if !(t.iter().all(|c| c.is_finite()) && parsed.final_score.is_finite()) {
+                bail!("detection {i} ({rank}): non-finite pose or score");
+            }
+        }
+    }
+    Ok(RecognitionReport::deserialize(&value)?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parse;
+
+    #[test]
+    fn a_bad_detection_is_named_by_index_and_rank() {
+        let pose = "[1,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1]";
+        let record = |rank: u32, pose: &str| {
+            format!(
+                r#"{{"rank": {rank}, "pose": {pose}, "initial_score": 1.0, "final_score": 0.0,
+                "score_before_icp": 0.0, "cluster": 0, "cluster_round": 0, "fpfh_radius_mm": 10.0,
+                "sac_threshold_mm": 1.0, "sac_inliers": 5,
+                "icp": {{"converged": true, "iterations": 1, "fitness_mm2": 0.1, "adopted": true}},
+                "height_mm": 1.0, "rank_reason": ""}}"#
+            )
+        };
+        let doc = |dets: String| format!(r#"{{"units": "mm", "detections": [{dets}]}}"#);
+        let bad = "[2,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1]"; // not a rotation
+        let e = parse(&doc(format!("{}, {}", record(1, pose), record(2, bad)))).unwrap_err();
+        let msg = format!("{e:#}");
+        assert!(msg.contains("detection 1 (rank 2)"), "{msg}");
+        assert!(parse("{").unwrap_err().to_string().contains("JSON"));
+    }
 }

@@ -8,7 +8,6 @@ use binpick_synth::{
     BenchmarkOptions, BenchmarkSummary, Preset, SynthOptions, generate, generate_generalisation,
 };
 
-use crate::config::log;
 use crate::progress::Progress;
 
 /// What to generate.
@@ -55,6 +54,13 @@ pub struct Args {
     /// Belt-level samples per scan instead of the preset's (thesis presets only).
     #[arg(long)]
     pub points: Option<usize>,
+    /// generalisation: only these sets (comma-separated names, e.g. brackets-bin-depth).
+    #[arg(long, value_delimiter = ',', value_name = "SET,...")]
+    pub sets: Vec<String>,
+    /// generalisation: also write each depth-camera set in BOP's format under DIR/<set>/bop
+    /// (16-bit depth PNGs, cam_K, scene_gt.json, PLY meshes) for `binpick eval DIR/<set>/bop`.
+    #[arg(long)]
+    pub bop: bool,
 }
 
 fn progress_fn(progress: &std::sync::Mutex<Option<Progress>>) -> impl Fn(usize, usize) + Sync + '_ {
@@ -69,6 +75,9 @@ fn progress_fn(progress: &std::sync::Mutex<Option<Progress>>) -> impl Fn(usize, 
 pub fn run(a: Args) -> Result<()> {
     let progress = std::sync::Mutex::new(None::<Progress>);
     let preset = match a.preset {
+        SynthPreset::Thesis(_) if a.bop || !a.sets.is_empty() => {
+            bail!("--bop and --sets apply to the generalisation benchmark only")
+        }
         SynthPreset::Thesis(p) => p,
         SynthPreset::Generalisation => {
             if a.points.is_some() {
@@ -81,6 +90,8 @@ pub fn run(a: Args) -> Result<()> {
                 out_dir: a.out.clone(),
                 seed: a.seed,
                 scenes_per_set: a.scenes_per_group,
+                sets: a.sets.clone(),
+                bop: a.bop,
             };
             let summary = generate_generalisation(&opts, &progress_fn(&progress))
                 .with_context(|| format!("cannot generate {}", a.out.display()))?;
@@ -113,10 +124,11 @@ pub fn run(a: Args) -> Result<()> {
         summary.total_points as f64 / 1e6,
         summary.elapsed_s
     );
-    log(&format!(
+    tracing::info!(
         "physics {:.0} s, scanning {:.0} s (summed over threads)",
-        summary.physics_s, summary.scan_s
-    ));
+        summary.physics_s,
+        summary.scan_s
+    );
     Ok(())
 }
 
@@ -148,8 +160,9 @@ fn print_benchmark(s: &BenchmarkSummary) {
         s.elapsed_s,
         s.out_dir.display()
     );
-    log(&format!(
+    tracing::info!(
         "physics {:.0} s, scanning and ground truth {:.0} s (summed over threads)",
-        s.physics_s, s.scan_s
-    ));
+        s.physics_s,
+        s.scan_s
+    );
 }

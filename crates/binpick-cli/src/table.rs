@@ -2,19 +2,38 @@
 
 use binpick::{FoundBy, Recognition};
 
+/// What the ranked table's columns mean (printed by `recognize --help` and in the README).
+pub const COLUMNS_HELP: &str = "\
+Ranked table (stdout; stderr with --json -), one row per detection, pick order:
+  rank       1 = pick first (detections[0] of the JSON)
+  vis %      estimated visible fraction: share of the surface the sensor would see of the
+             part alone in this pose that the scan confirms (scene-voting engine; - otherwise)
+  final %    percent of outliers of the final pose (thesis 3.1.2): model points farther than
+             outlier_distance_mm from the scan; lower is better
+  init mm^2  Euclidean score of the initial pose (thesis 3.1.1): mean squared distance of
+             model points to the scan; lower is better
+  x y z mm   position of the model frame's origin in the output frame: the scan's, or the
+             robot base's with --scanner-to-base (the line under the table names it)
+  roll pitch yaw
+             orientation in degrees, rotations about the output frame's fixed x, y and z axes
+             applied in that order: R = Rz(yaw) Ry(pitch) Rx(roll) (extrinsic XYZ, as ROS RPY)
+  found by   scene-voting: votes of the pose cluster; thesis engine: cluster index, FPFH
+             radius r in mm (merged = Algorithm 2) and RANSAC threshold t in mm that won
+  why        why it ranks there: with grasps declared in the model's sidecar, which grasp is
+             free or what blocks each one (a detection's rank or N scene points); then free /
+             covered share, visibility band, height along up
+Under the table: the first pick's free grasp (position mm and approach direction).";
+
 /// Roll, pitch, yaw (XYZ fixed axes), degrees.
-fn rpy_deg(p: &nalgebra::Isometry3<f64>) -> [f64; 3] {
+pub fn rpy_deg(p: &nalgebra::Isometry3<f64>) -> [f64; 3] {
     let (r, pi, y) = p.rotation.euler_angles();
     [r.to_degrees(), pi.to_degrees(), y.to_degrees()]
 }
 
-/// Columns: rank; `vis %` the estimated visible fraction (scene-voting) or `-`; `final %` the
-/// percent of outliers (thesis 3.1.2); `init mm^2` the Euclidean score of the initial pose
-/// (3.1.1); position; roll/pitch/yaw (rotations about the fixed x, y, z axes, applied in
-/// that order, degrees); `found by` (votes of the pose cluster, or cluster / FPFH radius /
-/// RANSAC threshold of the thesis engine); why it ranks there.
-pub fn print_ranked(r: &Recognition) {
-    println!(
+/// Prints the ranked table to `out`; columns in [`COLUMNS_HELP`].
+pub fn print_ranked(out: &mut impl std::io::Write, r: &Recognition) -> std::io::Result<()> {
+    writeln!(
+        out,
         "{:>4}  {:>6}  {:>8}  {:>10}  {:>9} {:>9} {:>9}  {:>7} {:>7} {:>7}  {:<22}  why",
         "rank",
         "vis %",
@@ -27,7 +46,7 @@ pub fn print_ranked(r: &Recognition) {
         "pitch",
         "yaw",
         "found by"
-    );
+    )?;
     for d in &r.detections {
         let t = d.pose.translation.vector;
         let [ro, pi, ya] = rpy_deg(&d.pose);
@@ -45,8 +64,10 @@ pub fn print_ranked(r: &Recognition) {
                 "cluster {cluster} r {} t {sac_threshold_mm:.1}",
                 fpfh_radius_mm.map_or("merged".to_string(), |x| format!("{x:.0}"))
             ),
+            _ => "-".to_string(),
         };
-        println!(
+        writeln!(
+            out,
             "{:>4}  {:>6}  {:>8.2}  {:>10.2}  {:>9.2} {:>9.2} {:>9.2}  {:>7.1} {:>7.1} {:>7.1}  {:<22}  {}",
             d.rank,
             vis,
@@ -60,8 +81,26 @@ pub fn print_ranked(r: &Recognition) {
             ya,
             found,
             d.rank_reason
-        );
+        )?;
     }
+    writeln!(out, "poses in frame {}", r.frame.frame_id)?;
+    if let Some(first) = r.detections.first().filter(|d| !d.grasps.is_empty()) {
+        match first.grasps.iter().find(|g| g.free) {
+            Some(g) => writeln!(
+                out,
+                "first pick: {} at ({:.2}, {:.2}, {:.2}) mm, approach ({:.4}, {:.4}, {:.4})",
+                g.name,
+                g.position_mm[0],
+                g.position_mm[1],
+                g.position_mm[2],
+                g.approach[0],
+                g.approach[1],
+                g.approach[2]
+            )?,
+            None => writeln!(out, "no detection has a free grasp")?,
+        }
+    }
+    Ok(())
 }
 
 /// What the scene-voting engine did, in one line, and why the best refused candidate was
@@ -77,7 +116,7 @@ pub fn voting_summary(v: &binpick::VotingReport) -> String {
         )
     });
     format!(
-        "{}: {} samples, {} votes, {} hypotheses, {} candidates verified, {} accepted; refused: {} too little surface, {} low visibility, {} free space, {} no outline, {} poor fit, {} repeats{refused}",
+        "{}: {} samples, {} votes, {} hypotheses, {} candidates verified, {} accepted; refused: {} too little surface, {} low visibility, {} free space, {} sunk into support, {} no outline, {} poor fit, {} repeats{refused}",
         v.sensor,
         v.scene_samples,
         v.votes,
@@ -87,6 +126,7 @@ pub fn voting_summary(v: &binpick::VotingReport) -> String {
         v.rejected_too_little_surface,
         v.rejected_low_visibility,
         v.rejected_free_space,
+        v.rejected_below_support,
         v.rejected_no_outline,
         v.rejected_poor_fit,
         v.rejected_explained
@@ -97,12 +137,13 @@ pub fn summary(r: &Recognition) -> String {
     let planes = r.preprocess.support_planes.len();
     let removed: usize = r.preprocess.support_planes.iter().map(|p| p.points).sum();
     format!(
-        "{} detection(s) in {:.0} ms; scene {} points, {} merged by the voxel grid, {} outside the ROI, {} support plane(s) with {} points removed, {} left; {} cluster(s){}",
+        "{} detection(s) in {:.0} ms; scene {} points, {} merged by the voxel grid, {} outside the ROI, {} stray, {} support plane(s) with {} points removed, {} left; {} cluster(s){}",
         r.detections.len(),
         r.timings.total_ms,
         r.preprocess.input_points,
         r.preprocess.voxel_merged,
         r.preprocess.outside_roi,
+        r.preprocess.isolated_removed,
         planes,
         removed,
         r.preprocess.remaining,

@@ -1,13 +1,14 @@
 //! Point clouds for binpick: the [`PointCloud`] type (millimetres unless stated otherwise),
 //! unit handling, PCD/PLY reading and writing and STL/OBJ/PLY mesh reading ([`io`]),
-//! triangle meshes and their surface sampling ([`mesh`]) and the labelled dataset format
-//! ([`dataset`]).
+//! triangle meshes and their surface sampling ([`mesh`]), depth images to organised clouds
+//! ([`depth`]) and the labelled dataset format ([`dataset`]).
 //!
 //! Everything here is pure Rust and independent of PCL, so the synthetic-data generator and
 //! the I/O tests build without the C++ toolchain.
 
 pub mod dataset;
 mod degeneracy;
+pub mod depth;
 pub mod io;
 pub mod mesh;
 pub mod rng;
@@ -23,7 +24,7 @@ pub type Point = [f32; 3];
 
 /// An unorganised point cloud. Inside binpick the coordinates are millimetres; clouds in
 /// other units are scaled on load (see [`Units`]).
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct PointCloud {
     pub points: Vec<Point>,
 }

@@ -10,8 +10,9 @@ use binpick_cloud::Units;
 use binpick_cloud::dataset::{Dataset, GroundTruth, ModelInfo};
 
 use binpick::error::{Result, input};
-use binpick::{Params, RecognitionReport, Recognizer, load_cloud};
+use binpick::{Params, PointCloud, RecognitionReport, Recognizer, load_cloud};
 
+use crate::bop::{BopDataset, BopIds};
 use crate::score::{DEFAULT_MATCH_FRACTION, SceneScore, ThesisTable, TruthInstance, score_scene};
 
 fn rigid(
@@ -31,6 +32,10 @@ pub struct SceneResult {
     /// Ground-truth id (file stem in `gt/`).
     pub id: String,
     pub scene: String,
+    /// The scene's BOP ids (BOP datasets: their own; binpick datasets: scene 0, image =
+    /// position in the run, object 1), for `--bop-csv`.
+    #[serde(default)]
+    pub bop: BopIds,
     /// Recognition time (load excluded), ms.
     pub time_ms: f64,
     pub score: SceneScore,
@@ -89,6 +94,24 @@ impl std::str::FromStr for ModelFile {
     }
 }
 
+/// How detections are scored for one model: its points (a sample), symmetries and diameter.
+struct Scoring {
+    points: Vec<Point3<f64>>,
+    symmetries: Vec<Isometry3<f64>>,
+    diameter_mm: f64,
+}
+
+/// One labelled scene to evaluate: where it is, its BOP ids, and how to load it.
+struct LabelledScene<'a> {
+    id: String,
+    scene: String,
+    bop: BopIds,
+    load: Box<dyn FnOnce() -> Result<LoadedScene> + 'a>,
+}
+
+/// The scan (mm), where its sensor was, and the ground truth of the evaluated model.
+type LoadedScene = (PointCloud, Option<[f64; 3]>, Vec<TruthInstance>);
+
 /// Evaluates `model` on every ground-truth file of `dataset` naming it, recognising with the
 /// model's `file`. Poses are scored on the scanned model's points whichever file recognises.
 /// `progress(done, total, last)` is called after each scene.
@@ -97,7 +120,7 @@ pub fn evaluate_dataset(
     model: &str,
     file: ModelFile,
     params: &Params,
-    mut progress: impl FnMut(usize, usize, &SceneResult),
+    progress: impl FnMut(usize, usize, &SceneResult),
 ) -> Result<EvalRun> {
     let gts: Vec<(String, GroundTruth)> = dataset
         .scene_ids
@@ -125,104 +148,236 @@ pub fn evaluate_dataset(
     };
     let (part, _) = binpick::load_part(&model_path, Units::Millimetres, params)?;
     let recognizer = Recognizer::with_part(part, params.clone())?;
-    let points: Vec<Point3<f64>> =
-        binpick_cloud::strided_points(&model_cloud.points, SCORING_POINTS);
-    let symmetries: Vec<Isometry3<f64>> = info
-        .symmetries
-        .iter()
-        .map(|s| rigid(s, "model info", "a symmetry is not a rigid transform"))
-        .collect::<Result<_>>()?;
+    let scoring = Scoring {
+        points: binpick_cloud::strided_points(&model_cloud.points, SCORING_POINTS),
+        symmetries: info
+            .symmetries
+            .iter()
+            .map(|s| rigid(s, "model info", "a symmetry is not a rigid transform"))
+            .collect::<Result<_>>()?,
+        diameter_mm: info.diameter,
+    };
+    let scenes: Vec<LabelledScene<'_>> = gts
+        .into_iter()
+        .enumerate()
+        .map(|(k, (id, gt))| {
+            let scene_path = dataset.scene_path(&gt);
+            LabelledScene {
+                id,
+                scene: gt.scene.clone(),
+                bop: BopIds {
+                    scene_id: 0,
+                    im_id: k as u32,
+                    obj_id: 1,
+                },
+                load: Box::new(move || {
+                    let (scene, loaded) = load_cloud(&scene_path, gt.units)?;
+                    let seen_from = binpick::sensor_position(&loaded, gt.units);
+                    let truth = gt
+                        .instances
+                        .iter()
+                        .map(|i| {
+                            Ok(TruthInstance {
+                                pose: rigid(
+                                    &i.pose,
+                                    "ground truth",
+                                    "a pose is not a rigid transform",
+                                )?,
+                                pickable: i.pickable,
+                                visible_fraction: i.visible_fraction,
+                            })
+                        })
+                        .collect::<Result<_>>()?;
+                    Ok((scene, seen_from, truth))
+                }),
+            }
+        })
+        .collect();
+    Ok(evaluate_scenes(
+        &recognizer,
+        &scoring,
+        &dataset.root.display().to_string(),
+        model,
+        scenes,
+        progress,
+    ))
+}
 
+/// Evaluates object `obj_id` on every image of a BOP split that labels it. The model is the
+/// object's mesh (`models/obj_<id>.ply`) with the symmetries of `models_info.json`; scans are
+/// the depth images as clouds in the camera frame (camera at the origin). An instance is
+/// pickable when its visib_fract is at least 0.5 (as for binpick's own datasets). `params`'s
+/// `up` is used as given: in a camera frame looking down at a bin, "up" is `[0, 0, -1]`.
+pub fn evaluate_bop(
+    dataset: &BopDataset,
+    obj_id: u32,
+    params: &Params,
+    progress: impl FnMut(usize, usize, &SceneResult),
+) -> Result<EvalRun> {
+    let info = dataset.models.get(&obj_id).ok_or_else(|| {
+        input(
+            "BOP dataset",
+            format!("object {obj_id} is not in models/models_info.json"),
+        )
+    })?;
+    let symmetries = info.symmetries(obj_id)?;
+    let model_path = dataset.model_path(obj_id);
+    let (part, _) = binpick::load_part(&model_path, Units::Millimetres, params)?;
+    let scoring = Scoring {
+        points: binpick_cloud::strided_points(&part.cloud.points, SCORING_POINTS),
+        symmetries: symmetries.transforms().to_vec(),
+        diameter_mm: info.diameter,
+    };
+    let recognizer = Recognizer::with_part(part.with_symmetries(symmetries), params.clone())?;
+    let scenes: Vec<LabelledScene<'_>> = dataset
+        .images
+        .iter()
+        .filter(|im| im.instances.iter().any(|i| i.obj_id == obj_id))
+        .map(|im| LabelledScene {
+            id: format!("{:06}-{:06}", im.scene_id, im.im_id),
+            scene: im
+                .depth
+                .strip_prefix(&dataset.root)
+                .unwrap_or(&im.depth)
+                .display()
+                .to_string(),
+            bop: BopIds {
+                scene_id: im.scene_id,
+                im_id: im.im_id,
+                obj_id,
+            },
+            load: Box::new(move || {
+                let cloud = im.load_cloud()?;
+                let truth = im
+                    .instances
+                    .iter()
+                    .filter(|i| i.obj_id == obj_id)
+                    .map(|i| TruthInstance {
+                        pose: i.pose,
+                        pickable: i.visible_fraction >= PICKABLE_FRACTION,
+                        visible_fraction: i.visible_fraction,
+                    })
+                    .collect();
+                Ok((cloud, Some([0.0; 3]), truth))
+            }),
+        })
+        .collect();
+    if scenes.is_empty() {
+        return Err(input(
+            "BOP dataset",
+            format!(
+                "no image of split {} labels object {obj_id}; labelled objects: {:?}",
+                dataset.split,
+                dataset.labelled_objects()
+            ),
+        ));
+    }
+    Ok(evaluate_scenes(
+        &recognizer,
+        &scoring,
+        &dataset.root.display().to_string(),
+        &format!("obj_{obj_id:06}"),
+        scenes,
+        progress,
+    ))
+}
+
+/// A visible fraction of at least this makes an instance pickable (binpick's datasets).
+pub const PICKABLE_FRACTION: f64 = 0.5;
+
+/// Recognises and scores every scene in order; a scene that fails is recorded, not fatal.
+fn evaluate_scenes(
+    recognizer: &Recognizer,
+    scoring: &Scoring,
+    dataset: &str,
+    model: &str,
+    scenes: Vec<LabelledScene<'_>>,
+    mut progress: impl FnMut(usize, usize, &SceneResult),
+) -> EvalRun {
     let mut run = EvalRun {
-        dataset: dataset.root.display().to_string(),
+        dataset: dataset.to_owned(),
         model: model.to_owned(),
         scenes: Vec::new(),
         table: ThesisTable::default(),
         times_ms: Vec::new(),
         failed: 0,
     };
-    let total = gts.len();
-    for (k, (id, gt)) in gts.into_iter().enumerate() {
-        let scene_path = dataset.scene_path(&gt);
-        let result = evaluate_scene(
-            &recognizer,
-            &scene_path,
-            &gt,
-            &points,
-            &symmetries,
-            info.diameter,
-            params,
-            model,
-        );
+    let total = scenes.len();
+    for (k, s) in scenes.into_iter().enumerate() {
+        let span = tracing::info_span!("scene", id = %s.id);
+        let _entered = span.enter();
+        let result = (s.load)().and_then(|(cloud, seen_from, truth)| {
+            evaluate_scene(
+                recognizer, scoring, &cloud, seen_from, &truth, &s.scene, model,
+            )
+        });
         let scene_result = match result {
             Ok((report, score)) => SceneResult {
-                id,
-                scene: gt.scene.clone(),
+                id: s.id,
+                scene: s.scene,
+                bop: s.bop,
                 time_ms: report.timings_ms.total_ms,
                 score,
                 error: None,
                 report: Some(report),
             },
-            Err(e) => SceneResult {
-                id,
-                scene: gt.scene.clone(),
-                time_ms: 0.0,
-                score: SceneScore::default(),
-                error: Some(e.to_string()),
-                report: None,
-            },
+            Err(e) => {
+                tracing::warn!("{e}");
+                SceneResult {
+                    id: s.id,
+                    scene: s.scene,
+                    bop: s.bop,
+                    time_ms: 0.0,
+                    score: SceneScore::default(),
+                    error: Some(e.to_string()),
+                    report: None,
+                }
+            }
         };
         if scene_result.error.is_some() {
             run.failed += 1;
         } else {
+            tracing::debug!(
+                detections = scene_result.score.detections.len(),
+                recognised_pickable = scene_result.score.recognised_pickable,
+                time_ms = scene_result.time_ms,
+                "scored"
+            );
             run.table.add(&scene_result.score);
             run.times_ms.push(scene_result.time_ms);
         }
         progress(k + 1, total, &scene_result);
         run.scenes.push(scene_result);
     }
-    Ok(run)
+    run
 }
 
-#[allow(clippy::too_many_arguments)]
 fn evaluate_scene(
     recognizer: &Recognizer,
-    scene_path: &Path,
-    gt: &GroundTruth,
-    points: &[Point3<f64>],
-    symmetries: &[Isometry3<f64>],
-    diameter: f64,
-    params: &Params,
+    scoring: &Scoring,
+    scene: &PointCloud,
+    seen_from: Option<[f64; 3]>,
+    truth: &[TruthInstance],
+    scene_name: &str,
     model: &str,
 ) -> Result<(RecognitionReport, SceneScore)> {
-    let (scene, loaded) = load_cloud(scene_path, gt.units)?;
-    let seen_from = binpick::sensor_position(&loaded, gt.units);
-    let recognition = recognizer.recognize_seen_from(&scene, seen_from)?;
-    let truth: Vec<TruthInstance> = gt
-        .instances
-        .iter()
-        .map(|i| {
-            Ok(TruthInstance {
-                pose: rigid(&i.pose, "ground truth", "a pose is not a rigid transform")?,
-                pickable: i.pickable,
-            })
-        })
-        .collect::<Result<_>>()?;
+    let recognition = recognizer.recognize_seen_from(scene, seen_from)?;
     let detections: Vec<(usize, Isometry3<f64>)> = recognition
         .detections
         .iter()
         .map(|d| (d.rank, d.pose))
         .collect();
     let score = score_scene(
-        points,
-        symmetries,
-        diameter,
-        &truth,
+        &scoring.points,
+        &scoring.symmetries,
+        scoring.diameter_mm,
+        truth,
         &detections,
         DEFAULT_MATCH_FRACTION,
     );
+    let params = recognizer.params();
     let report = RecognitionReport::new(
-        &scene_path.display().to_string(),
+        scene_name,
         model,
         params.stages().engine.name(),
         params,

@@ -14,6 +14,7 @@ pub fn thesis_reference(config: &str) -> Option<ThesisPercents> {
         false_best: fb,
         starvation: s,
         precision: f64::NAN,
+        bop_visible_recall: f64::NAN,
     };
     match config {
         "A" => Some(row(86.0, 14.0, 2.0, 22.0, 0.0, 2.0)),

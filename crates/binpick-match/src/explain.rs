@@ -24,6 +24,9 @@ pub struct ExplainConfig {
     pub min_fit: f64,
     /// Fewest confirmed grid cells (the part must be seen, not guessed). Range >= 1.
     pub min_explained_cells: u32,
+    /// Largest share of the model's surface that may lie behind a support plane (the part
+    /// sunk into the belt, floor or a wall). Range 0-1.
+    pub max_below_support: f64,
     /// Each free-space cell costs this many explained cells in the competition. Default 2,
     /// range 0-100.
     pub free_space_weight: f64,
@@ -44,6 +47,9 @@ impl ExplainConfig {
         }
         if !unit(self.min_fit) {
             return Err(MatchError::config("min_fit", "expected 0-1"));
+        }
+        if !unit(self.max_below_support) {
+            return Err(MatchError::config("max_below_support", "expected 0-1"));
         }
         if !unit(self.max_continued) {
             return Err(MatchError::config("max_continued", "expected 0-1"));
@@ -68,6 +74,8 @@ impl ExplainConfig {
             Some(Rejection::LowVisibility)
         } else if s.free_space_ratio() > self.max_free_space {
             Some(Rejection::FreeSpace)
+        } else if s.below_support_ratio() > self.max_below_support {
+            Some(Rejection::BelowSupport)
         } else if s.mean_fit() < self.min_fit {
             Some(Rejection::PoorFit)
         } else if s.continued_ratio() > self.max_continued {
@@ -87,6 +95,8 @@ pub enum Rejection {
     LowVisibility,
     /// Free-space contradictions above `max_free_space`.
     FreeSpace,
+    /// More than `max_below_support` of the part lies behind a support plane.
+    BelowSupport,
     /// The scene's surface carries on past more than `max_continued` of its outline.
     NoOutline,
     /// The confirmed surface fits worse than `min_fit`.

@@ -29,7 +29,7 @@ pub use view::{RangeGrid, Sensor, ViewConfig, ViewScore};
 pub type P3 = [f32; 3];
 
 /// Points with one unit normal each.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct OrientedPoints {
     pub points: Vec<P3>,
     pub normals: Vec<P3>,
@@ -121,5 +121,75 @@ pub enum MatchError {
 impl MatchError {
     pub(crate) fn config(field: &'static str, expected: &'static str) -> Self {
         Self::Config { field, expected }
+    }
+}
+
+/// Keeps, per cubic cell of `leaf` mm and per facing (the axis direction nearest the normal,
+/// one of six), the point nearest the cell's centre, in input order. The two sides of a thin
+/// sheet fall in one cell at coarse leaves but face opposite ways, so both survive (a plain
+/// voxel or uniform sampling keeps one of them at random). Deterministic.
+pub fn subsample_by_facing(points: &OrientedPoints, leaf: f64) -> OrientedPoints {
+    use std::collections::HashMap;
+    let mut best: HashMap<([i64; 3], u8), (usize, f64)> = HashMap::new();
+    for (i, (p, n)) in points.points.iter().zip(&points.normals).enumerate() {
+        let cell = p.map(|c| (f64::from(c) / leaf).floor() as i64);
+        let facing = facing(n);
+        let d2: f64 = (0..3)
+            .map(|k| {
+                let centre = (cell[k] as f64 + 0.5) * leaf;
+                (f64::from(p[k]) - centre).powi(2)
+            })
+            .sum();
+        best.entry((cell, facing))
+            .and_modify(|e| {
+                if d2 < e.1 {
+                    *e = (i, d2);
+                }
+            })
+            .or_insert((i, d2));
+    }
+    let mut keep: Vec<usize> = best.into_values().map(|(i, _)| i).collect();
+    keep.sort_unstable();
+    OrientedPoints {
+        points: keep.iter().map(|&i| points.points[i]).collect(),
+        normals: keep.iter().map(|&i| points.normals[i]).collect(),
+    }
+}
+
+/// Which of the six axis directions a normal is nearest to.
+fn facing(n: &P3) -> u8 {
+    let (mut axis, mut best) = (0usize, 0.0f32);
+    for (k, c) in n.iter().enumerate() {
+        if c.abs() > best {
+            best = c.abs();
+            axis = k;
+        }
+    }
+    (axis as u8) * 2 + u8::from(n[axis] < 0.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn both_sides_of_a_thin_sheet_survive() {
+        // A 1 mm thick sheet: top face z = 1 (normal +z), bottom z = 0 (normal -z).
+        let mut points = Vec::new();
+        let mut normals = Vec::new();
+        for i in 0..40 {
+            for j in 0..40 {
+                let (x, y) = (i as f32 * 0.5, j as f32 * 0.5);
+                points.push([x, y, 1.0]);
+                normals.push([0.0, 0.0, 1.0]);
+                points.push([x, y, 0.0]);
+                normals.push([0.0, 0.0, -1.0]);
+            }
+        }
+        let s = subsample_by_facing(&OrientedPoints { points, normals }, 4.0);
+        let up = s.normals.iter().filter(|n| n[2] > 0.0).count();
+        let down = s.normals.iter().filter(|n| n[2] < 0.0).count();
+        assert_eq!((up, down), (25, 25), "5 x 5 cells, both faces in each");
+        assert_eq!(subsample_by_facing(&s, 4.0), s, "idempotent");
     }
 }

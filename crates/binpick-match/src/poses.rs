@@ -10,7 +10,7 @@ use crate::ppf::Vote;
 
 /// Rigid symmetries of a part: transforms `S` of the model frame with `model = S * model`,
 /// the identity first. A continuous symmetry (a revolution) is carried as samples of it.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Symmetries {
     transforms: Vec<Isometry3<f64>>,
 }

@@ -19,7 +19,7 @@ use crate::index::PointIndex;
 use crate::{MatchError, OrientedPoints, P3};
 
 /// Quantisation and pairing of the point-pair features.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct PpfConfig {
     /// Distance quantisation step, mm: the sampling step of model and scene. Range > 0.
     pub distance_step_mm: f64,
@@ -83,7 +83,7 @@ impl PpfConfig {
 
 /// A point's canonical frame: `x -> rotation * (x - origin)` puts the point at the origin
 /// with its normal along +x.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 struct Frame {
     origin: Vector3<f32>,
     rotation: Rotation3<f32>,
@@ -114,6 +114,20 @@ impl Frame {
     }
 }
 
+/// `x.rem_euclid(TAU)`, bit for bit, without the division for `x` in (-TAU, TAU) (a
+/// difference of two `Frame::phi` almost always is): the voting loop's hottest line.
+#[inline]
+fn wrap_angle(x: f32) -> f32 {
+    use std::f32::consts::TAU;
+    if (0.0..TAU).contains(&x) {
+        x
+    } else if x < 0.0 && x > -TAU {
+        x + TAU
+    } else {
+        x.rem_euclid(TAU)
+    }
+}
+
 /// The feature of a pair, or None for coincident points or undefined normals.
 fn feature(p1: &P3, n1: &P3, p2: &P3, n2: &P3) -> Option<[f32; 4]> {
     let d = Vector3::from(*p2) - Vector3::from(*p1);
@@ -128,14 +142,14 @@ fn feature(p1: &P3, n1: &P3, p2: &P3, n2: &P3) -> Option<[f32; 4]> {
 }
 
 /// One model pair filed in the table: the first point's index and the partner's angle.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 struct Entry {
     point: u32,
     phi: f32,
 }
 
-/// The model's point-pair table.
-#[derive(Clone, Debug)]
+/// The model's point-pair table (serialisable, to be cached on disk).
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct PpfModel {
     config: PpfConfig,
     frames: Vec<Frame>,
@@ -346,13 +360,14 @@ impl PpfModel {
                         }
                         let phi_s = frame.phi(&scene.points[k]);
                         for e in &self.entries[lo..hi] {
-                            let alpha = (phi_s - e.phi).rem_euclid(std::f32::consts::TAU);
+                            let alpha = wrap_angle(phi_s - e.phi);
                             let a = ((alpha / alpha_step) as usize).min(n_alpha - 1);
                             let slot = e.point as usize * n_alpha + a;
-                            if acc[slot] == 0 {
+                            let count = &mut acc[slot];
+                            if *count == 0 {
                                 touched.push(slot as u32);
                             }
-                            acc[slot] += 1;
+                            *count += 1;
                         }
                     }
                     let peaks = self.peaks(acc, touched, config, n_alpha);
@@ -557,6 +572,35 @@ pub(crate) mod tests {
     use super::*;
     use crate::poses::{PoseClustering, Symmetries, cluster_poses};
     use nalgebra::Point3;
+
+    #[test]
+    fn wrap_angle_is_rem_euclid_on_phi_differences() {
+        use std::f32::consts::{PI, TAU};
+        let mut xs = vec![
+            -TAU,
+            -PI,
+            -0.0,
+            0.0,
+            PI,
+            TAU,
+            TAU - 1e-6,
+            -TAU + 1e-6,
+            f32::NAN,
+            3.0 * TAU,
+        ];
+        let mut v = 0.123_456_7_f32;
+        for _ in 0..100_000 {
+            v = (v * 7.31 + 0.41).fract();
+            xs.push((v - 0.5) * 2.0 * TAU);
+        }
+        for x in xs {
+            let (a, b) = (wrap_angle(x), x.rem_euclid(TAU));
+            assert!(
+                a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan()),
+                "{x}"
+            );
+        }
+    }
 
     /// An L of two rectangles plus a small tab (no rigid symmetry), sampled every `step` mm
     /// with outward normals.

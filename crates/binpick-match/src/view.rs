@@ -152,6 +152,8 @@ pub struct RangeGrid {
     background: Vec<bool>,
     /// Unit normal of the nearest surface in the cell (NaN when unknown).
     normal: Vec<[f32; 3]>,
+    /// The nearest point in the cell.
+    point: Vec<P3>,
     max_normal_cos: f64,
     /// Depth tolerance, mm.
     tolerance_mm: f64,
@@ -231,9 +233,21 @@ pub struct ViewScore {
     pub explained_fit: Vec<f32>,
     /// The occluded cells whose occluder is not background (a part lies on this one).
     pub covered: u32,
+    /// Model points (of a fixed sample over the whole surface) that lie behind a support
+    /// plane (belt, floor, bin wall) beyond the tolerance, and the points checked: a part
+    /// cannot sink into what carries it. Filled by the caller, which knows the planes.
+    pub below_support: u32,
+    pub support_checked: u32,
 }
 
 impl ViewScore {
+    /// How much the scene supports this pose: the fit weights of the explained cells less
+    /// `free_space_weight` per contradicted cell (the scene explanation's gain when nothing
+    /// is claimed yet).
+    pub fn support(&self, free_space_weight: f64) -> f64 {
+        self.fit - free_space_weight * f64::from(self.free_space)
+    }
+
     /// Share of the visible surface the scene confirms: an estimate of the part's visible
     /// fraction (BOP's visib_fract) when the pose is right.
     pub fn visibility(&self) -> f64 {
@@ -243,6 +257,11 @@ impl ViewScore {
     /// Share of the visible surface contradicted by free space.
     pub fn free_space_ratio(&self) -> f64 {
         ratio(self.free_space, self.visible)
+    }
+
+    /// Share of the checked model points that lie behind a support plane.
+    pub fn below_support_ratio(&self) -> f64 {
+        ratio(self.below_support, self.support_checked)
     }
 
     /// Share of the visible surface covered by something other than background.
@@ -359,6 +378,7 @@ impl RangeGrid {
         let mut near = vec![f32::NAN; cols * rows];
         let mut bg = vec![false; cols * rows];
         let mut normal = vec![[f32::NAN; 3]; cols * rows];
+        let mut point = vec![[f32::NAN; 3]; cols * rows];
         for (i, proj) in projected.iter().enumerate() {
             let Some((c, r, closeness)) = proj else {
                 continue;
@@ -368,6 +388,7 @@ impl RangeGrid {
             if near[k].is_nan() || v > near[k] {
                 near[k] = v;
                 bg[k] = background[i];
+                point[k] = points[i];
                 normal[k] = normals.map_or([f32::NAN; 3], |n| n[i]);
             }
         }
@@ -380,6 +401,7 @@ impl RangeGrid {
             near,
             background: bg,
             normal,
+            point,
             max_normal_cos: config.max_normal_angle_deg.to_radians().cos(),
             tolerance_mm: config.tolerance_mm,
         })
@@ -429,6 +451,7 @@ impl RangeGrid {
                 row: v.floor() as i64,
                 closeness,
                 slack: slope * self.projector.cell_mm(closeness),
+                position: q,
                 normal,
             });
         }
@@ -484,20 +507,25 @@ impl RangeGrid {
                     }
                     any = true;
                     let dz = v - m;
-                    if dz.abs() <= t {
+                    // The scene point's distance from the model's tangent plane: zero for
+                    // the same surface however slanted it is.
+                    let off_plane = (to_point(&self.point[k]) - cell.position)
+                        .dot(&cell.normal)
+                        .abs();
+                    if dz.abs() <= t + cell.slack && off_plane <= tol {
                         if self.normal_agrees(k, &cell.normal) {
                             let weight = if dr == 0 && dc == 0 { 1.0 } else { 0.25 };
-                            let fit = weight * (1.0 - (dz / t).powi(2));
+                            let fit = weight * (1.0 - (off_plane / tol).powi(2));
                             best_fit = Some(best_fit.map_or(fit, |b: f64| b.max(fit)));
                         } else {
                             wrong_normal = true;
                         }
-                    } else if dz > 0.0 {
+                    } else if dz > t {
                         front = true;
                         if dr == 0 && dc == 0 {
                             front_is_object = !self.background[k];
                         }
-                    } else {
+                    } else if dz < -t {
                         behind = true;
                     }
                 }
@@ -604,6 +632,8 @@ struct RenderedCell {
     closeness: f64,
     /// Depth a slanted surface spans within the cell, mm.
     slack: f64,
+    /// The model point, scene frame, mm.
+    position: Point3<f64>,
     /// Outward unit normal, scene frame.
     normal: Vector3<f64>,
 }

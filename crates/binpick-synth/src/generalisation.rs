@@ -337,6 +337,11 @@ pub struct BenchmarkOptions {
     pub seed: u64,
     /// Scans per set instead of [`DEFAULT_SCENES_PER_SET`].
     pub scenes_per_set: Option<usize>,
+    /// Only these sets (by name); empty = all. A set's scans do not depend on which others
+    /// are generated.
+    pub sets: Vec<String>,
+    /// Also write every depth-camera set in BOP's format under `<set>/bop/` ([`crate::bop`]).
+    pub bop: bool,
 }
 
 /// What one set holds, for the summary and the manifest.
@@ -580,10 +585,21 @@ fn run_scene(
     root: &Path,
     seed: u64,
     index: usize,
-) -> Result<(SceneRecord, f64, f64), SynthError> {
+    bop: bool,
+) -> Result<(SceneRecord, f64, f64, Option<crate::bop::ImageRecords>), SynthError> {
     let scene = make_set_scene(lib, set_models, set, seed, index)?;
     let t0 = Instant::now();
     let id = &scene.id;
+    let bop_records = match (&set.sensor, bop) {
+        (crate::sensor::Sensor::DepthCamera(cam), true) => Some(crate::bop::write_image(
+            &root.join("bop"),
+            cam,
+            &scene,
+            index as u32,
+            set_models,
+        )?),
+        _ => None,
+    };
     // A depth camera's scan records where the camera was; a line scanner's keeps PCL's
     // default (its rays are parallel along the sweep: "above" is the better description).
     let viewpoint = match &set.sensor {
@@ -635,7 +651,7 @@ fn run_scene(
         scan_seed: scene.scan_seed,
     };
     let write_s = t0.elapsed().as_secs_f64();
-    Ok((record, scene.physics_s, scene.scan_s + write_s))
+    Ok((record, scene.physics_s, scene.scan_s + write_s, bop_records))
 }
 
 /// The corral (if any) and the drop area (`[xmin, xmax, ymin, ymax]`) for `parts` parts.
@@ -743,7 +759,23 @@ pub fn generate_generalisation(
 ) -> Result<BenchmarkSummary, SynthError> {
     let start = Instant::now();
     let root = opts.out_dir.as_path();
-    let sets = generalisation_sets(opts.scenes_per_set);
+    let mut sets = generalisation_sets(opts.scenes_per_set);
+    if !opts.sets.is_empty() {
+        if let Some(unknown) = opts
+            .sets
+            .iter()
+            .find(|n| !sets.iter().any(|s| &s.name == *n))
+        {
+            return Err(SynthError::InvalidOptions(format!(
+                "no set named {unknown:?}; the sets are {}",
+                sets.iter()
+                    .map(|s| s.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )));
+        }
+        sets.retain(|s| opts.sets.contains(&s.name));
+    }
     // Refuse a foreign folder before deleting anything.
     let foreign = std::iter::once(root.to_owned())
         .chain(sets.iter().map(|s| root.join(&s.name)))
@@ -770,6 +802,12 @@ pub fn generate_generalisation(
     let set_models: Vec<Vec<&Model>> = sets.iter().map(|s| s.models(&lib)).collect();
     for (s, models) in sets.iter().zip(&set_models) {
         write_set_models(&root.join(&s.name), models)?;
+        if opts.bop && matches!(s.sensor, Sensor::DepthCamera(_)) {
+            let bop_root = root.join(&s.name).join("bop");
+            crate::bop::write_models(&bop_root, models)?;
+            std::fs::write(bop_root.join("README.txt"), crate::bop::README)
+                .map_err(io_err(&bop_root))?;
+        }
     }
 
     let jobs: Vec<(usize, usize)> = sets
@@ -779,30 +817,47 @@ pub fn generate_generalisation(
         .collect();
     let total = jobs.len();
     let done = AtomicUsize::new(0);
-    let results: Vec<Result<(usize, SceneRecord, f64, f64), SynthError>> = jobs
+    type JobResult = (
+        usize,
+        SceneRecord,
+        f64,
+        f64,
+        Option<crate::bop::ImageRecords>,
+    );
+    let results: Vec<Result<JobResult, SynthError>> = jobs
         .par_iter()
         .map(|&(si, index)| {
             let set = &sets[si];
-            let (rec, physics_s, scan_s) = run_scene(
+            let (rec, physics_s, scan_s, bop) = run_scene(
                 &lib,
                 &set_models[si],
                 set,
                 &root.join(&set.name),
                 opts.seed,
                 index,
+                opts.bop,
             )?;
             let d = done.fetch_add(1, Ordering::SeqCst) + 1;
             progress(d, total);
-            Ok((si, rec, physics_s, scan_s))
+            Ok((si, rec, physics_s, scan_s, bop))
         })
         .collect();
     let mut per_set: Vec<Vec<SceneRecord>> = sets.iter().map(|_| Vec::new()).collect();
+    let mut bop_images: Vec<Vec<crate::bop::ImageRecords>> =
+        sets.iter().map(|_| Vec::new()).collect();
     let (mut physics_s, mut scan_s) = (0.0, 0.0);
     for r in results {
-        let (si, rec, p, s) = r?;
+        let (si, rec, p, s, bop) = r?;
         physics_s += p;
         scan_s += s;
         per_set[si].push(rec);
+        bop_images[si].extend(bop);
+    }
+    for (s, images) in sets.iter().zip(&mut bop_images) {
+        if !images.is_empty() {
+            images.sort_by_key(|i| i.im_id);
+            crate::bop::write_scene_files(&root.join(&s.name).join("bop"), images)?;
+        }
     }
     for recs in &mut per_set {
         recs.sort_by_key(|r| r.index);

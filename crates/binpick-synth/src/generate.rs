@@ -656,6 +656,13 @@ pub(crate) fn prepare_out_dir(root: &Path) -> Result<(), SynthError> {
                     std::fs::remove_file(&p).map_err(io_err(&p))?;
                 }
             }
+            // A BOP copy written by binpick-synth (`--bop`).
+            let bop = root.join("bop");
+            let ours = std::fs::read_to_string(bop.join("README.txt"))
+                .is_ok_and(|t| t.contains("written by\nbinpick-synth"));
+            if ours {
+                std::fs::remove_dir_all(&bop).map_err(io_err(&bop))?;
+            }
         }
     }
     std::fs::create_dir_all(root).map_err(io)

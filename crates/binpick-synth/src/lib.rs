@@ -18,7 +18,8 @@
 //! - [`plan`] / [`generate`]: the presets `thesis-conveyor`, `thesis-arm` and `tiny` and the
 //!   dataset writer (layout in [`binpick_cloud::dataset`]);
 //! - [`generalisation`]: the generalisation benchmark (sets of the new families on belts, in
-//!   bins and under a depth camera, with BOP's visible fraction).
+//!   bins and under a depth camera, with BOP's visible fraction); [`bop`] writes its
+//!   depth-camera sets in BOP's format too.
 //!
 //! Everything is in millimetres; the scene frame has z up (belt/floor at z = 0), x across the
 //! belt and y along the motion. Same seed -> byte-identical files, whatever the thread count.
@@ -37,6 +38,7 @@
 //! # Ok::<(), binpick_synth::SynthError>(())
 //! ```
 
+pub mod bop;
 pub mod depth;
 pub mod generalisation;
 pub mod generate;

@@ -497,6 +497,8 @@ fn one_scan_per_set_writes_the_benchmark_layout() {
     let dir = tempfile::tempdir().unwrap();
     let root = dir.path().join("bench");
     let opts = BenchmarkOptions {
+        sets: Vec::new(),
+        bop: false,
         out_dir: root.clone(),
         seed: 5,
         scenes_per_set: Some(1),
@@ -567,6 +569,8 @@ fn one_scan_per_set_writes_the_benchmark_layout() {
     let before = walk(&root);
     let again = generate_generalisation(
         &BenchmarkOptions {
+            sets: Vec::new(),
+            bop: false,
             scenes_per_set: Some(0),
             ..opts.clone()
         },
@@ -587,6 +591,8 @@ fn one_scan_per_set_writes_the_benchmark_layout() {
     std::fs::write(foreign.join("notes.txt"), "keep").unwrap();
     let err = generate_generalisation(
         &BenchmarkOptions {
+            sets: Vec::new(),
+            bop: false,
             out_dir: foreign.clone(),
             ..opts
         },

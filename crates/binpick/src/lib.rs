@@ -16,6 +16,15 @@
 //! if let Some(best) = result.detections.first() {
 //!     println!("pick at {}", best.pose.translation.vector);
 //! }
+//! // With a time budget and a cancel token: partial, flagged results instead of an error.
+//! let cancel = binpick::CancelToken::new();
+//! let options = binpick::RecognizeOptions::default()
+//!     .time_budget(std::time::Duration::from_millis(300))
+//!     .cancel(cancel.clone());
+//! let result = recognizer.recognize_with(&scene, &options)?;
+//! if let Some(why) = &result.interrupted {
+//!     println!("{why}; {} part(s) verified before that", result.detections.len());
+//! }
 //! # Ok(()) }
 //! ```
 //!
@@ -23,37 +32,58 @@
 //! [`Recognizer`] (the pipeline) and the reference engine -> the engines (per-cluster
 //! Algorithms 1/2) -> the stages (preprocess, cluster, features, initial and final alignment,
 //! rank, and the model prepared once) -> the validation scores ([`validate`]) -> plain data:
-//! [`params`] (one config per stage) and [`result`] (detections and reports).
+//! [`Params`] (one config per stage) and the results ([`Recognition`], [`Detection`],
+//! [`RecognitionReport`]).
+//!
+//! The library never prints: it emits `tracing` spans and events (target `binpick`) for the
+//! caller's subscriber, if any (the `binpick` CLI prints them on stderr with `-v`).
+
+#![warn(missing_docs)]
 
 mod deadline;
 mod engines;
 pub mod error;
-pub mod params;
-pub mod part_file;
+mod frames;
+mod grasp;
+pub mod inspect;
+mod params;
+mod part_file;
 pub mod pose;
-pub mod recognizer;
+pub mod prepared;
+mod recognizer;
 #[cfg(feature = "reference")]
 pub mod reference;
-pub mod result;
+mod result;
 mod stages;
 pub mod validate;
+mod workers;
 
 pub use binpick_cloud::{Point, PointCloud, Units};
 pub use binpick_match::Symmetries;
-pub use error::{Error, Result};
+pub use deadline::CancelToken;
+pub use error::{Error, ErrorKind, InputKind, Result};
+pub use frames::{BASE_FRAME_ID, OutputFrame};
+pub use grasp::{Blocker, Grasp, GraspCheck};
+pub use inspect::{PartInspection, SelfMatch, SelfMatchKind, inspect_part};
 pub use params::{
     Algorithm, ClusteringConfig, ConsensusConfig, Engine, FeatureConfig, FeatureSurface, IcpConfig,
     ParamError, Params, PileSearchConfig, PreprocessConfig, Preset, RankingConfig,
     RegionOfInterest, RuntimeConfig, SensorConfig, SupportRemoval, ValidationConfig, VerifyConfig,
     VotingConfig,
 };
-pub use part_file::{PartLoadReport, load_part};
-pub use recognizer::Recognizer;
-pub use result::{
-    ClusterReport, Detection, FoundBy, IcpReport, PreprocessReport, Recognition, RecognitionReport,
-    RemovedPlane, Timings, ViewCheck,
+pub use params::{THESIS_RESOLUTION_MM, THESIS_SUPPORT_DISTANCE_MM};
+pub use part_file::{
+    PartLoadReport, REVOLUTION_STEP_DEG, Sidecar, load_part, read_sidecar, sidecar_path,
 };
-pub use result::{DerivedScale, VotingReport};
+pub use recognizer::{RecognizeOptions, Recognizer};
+pub use result::{
+    CandidateRecord, DerivedScale, PoseCheck, RESULT_SCHEMA_VERSION, RefusedCandidate, RosPoint,
+    RosPose, RosQuaternion, SCANNER_FRAME_ID, VotingReport,
+};
+pub use result::{
+    ClusterReport, Detection, FoundBy, IcpReport, Interruption, PreprocessReport, Recognition,
+    RecognitionReport, RemovedPlane, StopCause, Timings, ViewCheck,
+};
 pub use stages::model::PreparedModel;
 pub use stages::part::{Part, PartSource};
 pub use stages::scale::{PartSize, Spacing};
@@ -76,6 +106,13 @@ pub fn load_cloud(
     units: Units,
 ) -> Result<(PointCloud, binpick_cloud::io::LoadReport)> {
     let (mut cloud, report) = binpick_cloud::io::read_cloud(path)?;
+    tracing::debug!(
+        path = %path.display(),
+        points = cloud.len(),
+        non_finite_dropped = report.non_finite_dropped,
+        organised = report.is_organized(),
+        "cloud read"
+    );
     let f = units.to_mm();
     if f != 1.0 {
         cloud.scale(f);

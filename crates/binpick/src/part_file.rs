@@ -7,13 +7,17 @@
 //! ```json
 //! { "symmetries": [[16 numbers, row-major 4x4, model frame], ...],
 //!   "revolution_axis": { "point": [x, y, z], "direction": [x, y, z] },
-//!   "diameter": 71.3 }
+//!   "diameter": 71.3,
+//!   "grasps": [ { "name": "top", "position_mm": [0, 0, 4], "approach": [0, 0, -1],
+//!                 "clearance_radius_mm": 12, "clearance_length_mm": 150 } ] }
 //! ```
 //!
 //! `symmetries` are rigid transforms `S` with `model = S * model` (the identity may be left
 //! out); `revolution_axis` declares a continuous symmetry about a line (sampled every
 //! [`REVOLUTION_STEP_DEG`] and composed with the listed transforms, e.g. a washer's
-//! upside-down half-turn). `diameter` is only read by the evaluator.
+//! upside-down half-turn). `diameter` is only read by the evaluator. `grasps` are
+//! [`Grasp`]s: where the gripper closes and the direction it moves in to get there (model
+//! frame, mm), and the cylinder it needs free on the way (see [`crate::grasp`]).
 
 use std::path::{Path, PathBuf};
 
@@ -25,7 +29,8 @@ use binpick_cloud::io::{Model, read_model};
 use binpick_cloud::{RowMajor4x4, SurfaceSampling, Units, pose_from_row_major};
 use binpick_match::{OrientedPoints, Symmetries};
 
-use crate::error::{Result, input};
+use crate::error::{InputKind, Result, input, input_as};
+use crate::grasp::Grasp;
 use crate::params::Params;
 use crate::stages::part::Part;
 
@@ -40,13 +45,20 @@ const MESH_SAMPLING_EXTENTS: f64 = 1.0 / 250.0;
 
 /// The sidecar's keys (see the module docs).
 #[derive(Clone, Debug, Default, PartialEq, Deserialize)]
+#[non_exhaustive]
 pub struct Sidecar {
+    /// Rigid transforms mapping the part onto itself (row-major 4x4, model frame).
     #[serde(default)]
     pub symmetries: Vec<RowMajor4x4>,
+    /// A continuous symmetry about a line.
     #[serde(default)]
     pub revolution_axis: Option<RevolutionAxis>,
+    /// The part's diameter, mm (read by the evaluator only).
     #[serde(default)]
     pub diameter: Option<f64>,
+    /// Where a gripper may take the part (model frame).
+    #[serde(default)]
+    pub grasps: Vec<Grasp>,
 }
 
 impl Sidecar {
@@ -80,37 +92,70 @@ pub fn read_sidecar(model: &Path) -> Result<Option<Sidecar>> {
     if !path.exists() {
         return Ok(None);
     }
-    let text = std::fs::read_to_string(&path)
-        .map_err(|e| input("model sidecar", format!("{}: {e}", path.display())))?;
-    serde_json::from_str(&text)
-        .map(Some)
-        .map_err(|e| input("model sidecar", format!("{}: {e}", path.display())))
+    let text = std::fs::read_to_string(&path).map_err(|e| {
+        input_as(
+            "model sidecar",
+            InputKind::Parse,
+            format!("{}: {e}", path.display()),
+        )
+    })?;
+    serde_json::from_str(&text).map(Some).map_err(|e| {
+        input_as(
+            "model sidecar",
+            InputKind::Parse,
+            format!("{}: {e}", path.display()),
+        )
+    })
 }
 
 /// What loading a part did, for logs.
 #[derive(Clone, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct PartLoadReport {
+    /// Whether the model was a mesh (else a scanned cloud).
     pub mesh: bool,
     /// Points of the part's surface (mesh: samples).
     pub points: usize,
     /// Where the scanner was for a scanned model, mm (model frame), and where that came from.
     pub viewpoint: Option<([f64; 3], &'static str)>,
+    /// The sidecar that was read, if any.
     pub sidecar: Option<PathBuf>,
+    /// Symmetries attached (the identity included).
     pub symmetries: usize,
+    /// Grasps declared in the sidecar.
+    pub grasps: usize,
 }
 
 /// Loads a part model: a mesh is sampled over its whole surface with outward normals; a
 /// scanned cloud gets normals facing its scanner (the PCD `VIEWPOINT` when the file has
 /// one, else `features.model_viewpoint_mm`). The sidecar's symmetries are attached.
+///
+/// A prepared model (`*.prepared`, written by `binpick model prepare`, see
+/// [`crate::prepared`]) is read as it was prepared, with its voting models.
 pub fn load_part(path: &Path, units: Units, params: &Params) -> Result<(Part, PartLoadReport)> {
+    let _span = tracing::debug_span!("load_part", path = %path.display()).entered();
+    if crate::prepared::is_prepared(path) {
+        let (part, header) = crate::prepared::read(path, units, params)?;
+        let sidecar = sidecar_path(&header.source);
+        let report = PartLoadReport {
+            mesh: part.source == crate::PartSource::Mesh,
+            points: part.surface.len(),
+            viewpoint: None,
+            sidecar: sidecar.exists().then_some(sidecar),
+            symmetries: part.symmetries.transforms().len(),
+            grasps: part.grasps.len(),
+        };
+        return Ok((part, report));
+    }
     let mut model = read_model(path)?;
     model.scale_to_mm(units);
     let threads = params.runtime.threads as u32;
     let (part, mesh, viewpoint) = match model {
         Model::Mesh(m) => {
             let bounds = m.mesh.bounds().ok_or_else(|| {
-                input(
+                input_as(
                     "model",
+                    InputKind::Degenerate,
                     format!("{}: the mesh has no vertices", path.display()),
                 )
             })?;
@@ -158,6 +203,21 @@ pub fn load_part(path: &Path, units: Units, params: &Params) -> Result<(Part, Pa
         viewpoint,
         sidecar: sidecar.as_ref().map(|_| sidecar_path(path)),
         symmetries: symmetries.transforms().len(),
+        grasps: sidecar.as_ref().map_or(0, |s| s.grasps.len()),
     };
+    tracing::debug!(
+        mesh = report.mesh,
+        points = report.points,
+        symmetries = report.symmetries,
+        grasps = report.grasps,
+        "part loaded"
+    );
+    let grasps = sidecar.map(|s| s.grasps).unwrap_or_default();
+    let part = part.with_grasps(grasps).map_err(|e| {
+        input(
+            "model sidecar",
+            format!("{}: {e}", sidecar_path(path).display()),
+        )
+    })?;
     Ok((part.with_symmetries(symmetries), report))
 }

@@ -16,7 +16,9 @@
 //! It always runs the thesis exactly (one detection per cluster, no duplicate suppression):
 //! `thesis_strict`, `consensus_modes`, `symmetry_candidates`, `final_candidates` and
 //! `duplicate_overlap` are not consulted. `time_budget_ms` is checked once the call returns
-//! (the C++ loop cannot be interrupted). `threads` sets the OpenMP team of the cluster loop (0 = OpenMP's default);
+//! (the C++ loop cannot be interrupted): a late call is flagged in `Recognition::interrupted`
+//! with its complete detections. The crop and stray-point removal run in Rust, shared with
+//! `Recognizer`, before the C++ pipeline. `threads` sets the OpenMP team of the cluster loop (0 = OpenMP's default);
 //! PCL's OpenMP estimators inside it keep their default thread count.
 
 use std::time::Instant;
@@ -26,14 +28,14 @@ use serde::{Deserialize, Serialize};
 use binpick_cloud::{Point, PointCloud};
 use binpick_pcl::{ClusterOutcome, ReferenceParams, ReferenceResult};
 
-use crate::deadline::ms;
-use crate::error::{Error, Result, input, pcl};
+use crate::deadline::{Deadline, ms};
+use crate::error::{InputKind, Result, input_as, pcl};
 use crate::params::{Algorithm, FeatureSurface, Params};
 use crate::result::{
-    ClusterReport, Detection, FoundBy, IcpReport, PreprocessReport, Recognition, RemovedPlane,
-    SearchStop, Timings,
+    ClusterReport, Detection, FoundBy, IcpReport, Interruption, PreprocessReport, Recognition,
+    RemovedPlane, SearchStop, StopCause, Timings,
 };
-use crate::stages::preprocess::check_units;
+use crate::stages::preprocess::{check_units, clean_scene};
 use crate::stages::rank::{height_mm, rank_detections};
 
 /// Where the reference spent its time, ms. Stages inside the cluster loop add up the work of
@@ -42,15 +44,19 @@ use crate::stages::rank::{height_mm, rank_detections};
 pub struct ReferenceStages {
     /// The model's keypoints and FPFH, recomputed in every cluster.
     pub model_features_ms: f64,
+    /// Each cluster's uniform keypoints.
     pub cluster_keypoints_ms: f64,
+    /// Each cluster's normals and FPFH descriptors.
     pub cluster_fpfh_ms: f64,
     /// FPFH matching (and Algorithm 2's merge).
     pub correspondences_ms: f64,
     /// RANSAC correspondence rejection.
     pub rejection_ms: f64,
+    /// SVD pose estimates of the consensus sets.
     pub svd_ms: f64,
     /// Euclidean validation scores of the threshold sweep (a kd-tree each).
     pub euclidean_score_ms: f64,
+    /// ICP, the final alignment.
     pub icp_ms: f64,
     /// Percent-of-outliers scores (and the Euclidean tie-break) of the final alignment.
     pub outlier_score_ms: f64,
@@ -65,12 +71,14 @@ pub struct ReferenceStages {
 /// breakdown.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ReferenceRun {
+    /// The detections and reports.
     pub recognition: Recognition,
+    /// Where the time went.
     pub stages: ReferenceStages,
 }
 
 /// Recognises every instance of `model` in `scene` (both millimetres) with the reference
-/// C++ pipeline; detections ranked by [`rank_detections`] like `Recognizer::recognize`.
+/// C++ pipeline; detections ranked by the thesis ranking like `Recognizer::recognize`.
 /// `timings.model_preparation_ms` is the reference's up-front model check; `total_ms` is the
 /// whole call, model work included (the thesis has no separate preparation).
 pub fn recognize_reference(
@@ -90,11 +98,26 @@ pub fn recognize_reference_detailed(
     let start = Instant::now();
     params.validate()?;
     check_units("model", model, &params.preprocess)?;
-    check_units("scene", scene, &params.preprocess)?;
-    let raw =
-        binpick_pcl::reference_recognize(&model.points, &scene.points, &reference_params(params))
-            .map_err(pcl("reference pipeline"))?;
+    // The crop and stray-point removal are binpick's, shared with the Rust engine (the C++
+    // pipeline then gets no region of interest): both engines see the same points.
+    let mut cleaning = PreprocessReport::default();
+    let cleaned = clean_scene(
+        scene,
+        &params.preprocess,
+        &Deadline::unlimited(),
+        &mut cleaning,
+    )?;
+    let clean_ms = ms(start.elapsed());
+    let mut flat = reference_params(params);
+    flat.roi_enabled = false;
+    let raw = binpick_pcl::reference_recognize(&model.points, &cleaned, &flat)
+        .map_err(pcl("reference pipeline"))?;
     let mut run = convert(raw, params)?;
+    let pre = &mut run.recognition.preprocess;
+    pre.input_points = cleaning.input_points;
+    pre.outside_roi = cleaning.outside_roi;
+    pre.isolated_removed = cleaning.isolated_removed;
+    run.recognition.timings.preprocess_ms += clean_ms;
     let t = Instant::now();
     rank_detections(
         &mut run.recognition.detections,
@@ -103,14 +126,17 @@ pub fn recognize_reference_detailed(
     run.recognition.timings.ranking_ms = ms(t.elapsed());
     let elapsed = start.elapsed();
     run.recognition.timings.total_ms = ms(elapsed);
-    if let Some(budget) = params.runtime.time_budget_ms {
-        if elapsed.as_millis() > u128::from(budget) {
-            return Err(Error::TimeBudget {
-                budget_ms: budget,
-                elapsed_ms: u64::try_from(elapsed.as_millis()).unwrap_or(u64::MAX),
-                stage: "reference pipeline",
-            });
-        }
+    // The C++ loop cannot be interrupted: the budget is checked at return, and a late call
+    // is flagged (its detections are complete).
+    if let Some(budget) = params.runtime.time_budget_ms
+        && elapsed.as_millis() > u128::from(budget)
+    {
+        run.recognition.interrupted = Some(Interruption {
+            cause: StopCause::TimeBudget,
+            budget_ms: Some(budget as f64),
+            stage: "return".into(),
+            elapsed_ms: ms(elapsed),
+        });
     }
     Ok(run)
 }
@@ -161,7 +187,13 @@ fn convert(r: ReferenceResult, p: &Params) -> Result<ReferenceRun> {
         .chunks_exact(3)
         .map(|c| [c[0], c[1], c[2]])
         .collect();
-    let not_rigid = || input("reference pipeline", "returned a pose that is not rigid");
+    let not_rigid = || {
+        input_as(
+            "reference pipeline",
+            InputKind::Internal,
+            "returned a pose that is not rigid",
+        )
+    };
     let mut detections = Vec::with_capacity(r.detections.len());
     for d in &r.detections {
         let pose = d.pose().ok_or_else(not_rigid)?;
@@ -169,8 +201,9 @@ fn convert(r: ReferenceResult, p: &Params) -> Result<ReferenceRun> {
             .ok()
             .and_then(|i| p.features.fpfh_radii_mm.get(i).copied());
         if p.algorithm == Algorithm::SeparatedFpfh && fpfh_radius_mm.is_none() {
-            return Err(input(
+            return Err(input_as(
                 "reference pipeline",
+                InputKind::Internal,
                 format!("returned FPFH radius index {}", d.fpfh_radius_index),
             ));
         }
@@ -202,6 +235,7 @@ fn convert(r: ReferenceResult, p: &Params) -> Result<ReferenceRun> {
             },
             height_mm: height_mm(&pose, &final_kp, p.ranking.up),
             rank_reason: String::new(),
+            grasps: Vec::new(),
         });
     }
     let clusters = r
@@ -241,6 +275,7 @@ fn convert(r: ReferenceResult, p: &Params) -> Result<ReferenceRun> {
         preprocess: PreprocessReport {
             input_points: r.input_points as usize,
             outside_roi: r.outside_roi as usize,
+            isolated_removed: 0,
             voxel_merged: r.voxel_merged as usize,
             support_planes: r
                 .support_planes
@@ -248,6 +283,7 @@ fn convert(r: ReferenceResult, p: &Params) -> Result<ReferenceRun> {
                 .map(|s| RemovedPlane {
                     coefficients: s.coefficients,
                     points: s.points as usize,
+                    rms_mm: None,
                 })
                 .collect(),
             remaining: r.remaining as usize,
@@ -256,8 +292,11 @@ fn convert(r: ReferenceResult, p: &Params) -> Result<ReferenceRun> {
         voting: None,
         clusters,
         duplicates_suppressed: 0,
+        interrupted: None,
+        frame: crate::frames::OutputFrame::scanner(),
         timings: Timings {
             model_preparation_ms: t.model_preparation_ms,
+            queue_ms: 0.0,
             preprocess_ms: t.preprocess_ms,
             clustering_ms: t.clustering_ms,
             initial_alignment_ms: t.initial_alignment_ms,

@@ -9,82 +9,13 @@
 //! | [`outlier_percent`]   | 3.1.2   | (100/m) sum_i [min_j \|\|o_i - w_j\|\| > d]                        | 0       | 100          |
 //! | [`normal_angle_score`]| 3.1.3   | (1/m) sum_i angle(n(o_i), n(w_nearest(i)))^2  (deg^2)          | 0       | 180^2        |
 
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Isometry3, Point3, Vector3};
 
 use binpick_cloud::Point;
 
-/// Exact nearest-neighbour index over a fixed set of points (kiddo's immutable kd-tree).
-pub struct NearestIndex {
-    tree: ImmutableKdTree<f32, 3>,
-    len: usize,
-}
-
-impl std::fmt::Debug for NearestIndex {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("NearestIndex")
-            .field("len", &self.len)
-            .finish()
-    }
-}
-
-/// Building a [`NearestIndex`] failed.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum IndexError {
-    #[error("cannot index an empty point set")]
-    Empty,
-    #[error("point {0} has a non-finite coordinate")]
-    NonFinite(usize),
-    #[error("kd-tree construction failed: {0}")]
-    Construction(String),
-}
-
-impl NearestIndex {
-    /// Indexes `points` (must be non-empty and finite).
-    pub fn new(points: &[Point]) -> Result<Self, IndexError> {
-        if points.is_empty() {
-            return Err(IndexError::Empty);
-        }
-        if let Some(i) = points.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
-            return Err(IndexError::NonFinite(i));
-        }
-        let tree = ImmutableKdTree::new_from_slice(points)
-            .map_err(|e| IndexError::Construction(format!("{e:?}")))?;
-        Ok(Self {
-            tree,
-            len: points.len(),
-        })
-    }
-
-    pub fn len(&self) -> usize {
-        self.len
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.len == 0
-    }
-
-    /// Index of the nearest indexed point and the squared distance to it.
-    pub fn nearest(&self, q: &Point) -> (usize, f32) {
-        let n = self
-            .tree
-            .query(q)
-            .nearest_one::<SquaredEuclidean<f32>>()
-            .execute();
-        (n.item as usize, n.distance)
-    }
-
-    /// Indices of all points within `radius` of `q` (unsorted).
-    pub fn within(&self, q: &Point, radius: f32) -> Vec<usize> {
-        self.tree
-            .query(q)
-            .within::<SquaredEuclidean<f32>>(radius * radius)
-            .execute()
-            .into_iter()
-            .map(|n| n.item as usize)
-            .collect()
-    }
-}
+/// Exact nearest-neighbour index over a fixed set of points (kiddo's immutable kd-tree; the
+/// one the scene-voting engine uses too).
+pub use binpick_match::PointIndex as NearestIndex;
 
 #[inline]
 fn moved(pose: &Isometry3<f64>, p: &Point) -> Point {
@@ -173,12 +104,15 @@ mod tests {
 
     // World: 4 points on the x axis at 0, 10, 20, 30 mm.
     fn world() -> NearestIndex {
-        NearestIndex::new(&[
-            [0.0, 0.0, 0.0],
-            [10.0, 0.0, 0.0],
-            [20.0, 0.0, 0.0],
-            [30.0, 0.0, 0.0],
-        ])
+        NearestIndex::new(
+            "world",
+            &[
+                [0.0, 0.0, 0.0],
+                [10.0, 0.0, 0.0],
+                [20.0, 0.0, 0.0],
+                [30.0, 0.0, 0.0],
+            ],
+        )
         .unwrap()
     }
 
@@ -273,13 +207,11 @@ mod tests {
 
     #[test]
     fn index_rejects_bad_points() {
-        assert_eq!(NearestIndex::new(&[]).unwrap_err(), IndexError::Empty);
-        assert_eq!(
-            NearestIndex::new(&[[0.0; 3], [f32::NAN, 0.0, 0.0]]).unwrap_err(),
-            IndexError::NonFinite(1)
-        );
+        assert!(NearestIndex::new("world", &[]).is_err());
+        assert!(NearestIndex::new("world", &[[0.0; 3], [f32::NAN, 0.0, 0.0]]).is_err());
         let w = world();
-        let mut found = w.within(&[10.5, 0.0, 0.0], 10.0);
+        let mut found = Vec::new();
+        w.within_into(&[10.5, 0.0, 0.0], 10.0, &mut found);
         found.sort();
         assert_eq!(found, vec![1, 2]);
     }

@@ -18,7 +18,7 @@ fn data(name: &str) -> PathBuf {
 
 /// Share of `model` points, placed by `pose`, within 8 mm of the carton's own points.
 fn share_on_carton(crop: &PointCloud, model: &[[f32; 3]], pose: &Isometry3<f64>) -> f64 {
-    let crop_index = NearestIndex::new(&crop.points).unwrap();
+    let crop_index = NearestIndex::new("crop", &crop.points).unwrap();
     let on = model
         .iter()
         .map(|p| binpick_cloud::transform_point(pose, p))
@@ -74,7 +74,7 @@ fn milk_carton_is_found_in_the_kinect_scene() {
     assert!(best.final_score < 5.0, "{best:?}");
 
     // The placed model lies on the carton: most of its keypoints are within 8 mm of the crop.
-    let crop_index = NearestIndex::new(&crop.points).unwrap();
+    let crop_index = NearestIndex::new("crop", &crop.points).unwrap();
     let placed: Vec<_> = rec
         .model()
         .expect("the thesis engine")

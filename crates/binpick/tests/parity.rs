@@ -25,7 +25,7 @@ mod support;
 use std::path::PathBuf;
 use std::time::Instant;
 
-use binpick::params::RegionOfInterest;
+use binpick::RegionOfInterest;
 use binpick::reference::{recognize_reference, recognize_reference_detailed};
 use binpick::{
     Algorithm, Detection, Error, FeatureSurface, Params, PointCloud, Preset, Recognition,
@@ -317,7 +317,7 @@ fn other_options_match_too() {
             p.preprocess.resolution_mm = Some(2.0);
             p.features.initial_leaf_mm = 4.0;
             p.icp.final_leaf_mm = 3.0;
-            p.preprocess.support = binpick::params::SupportRemoval {
+            p.preprocess.support = binpick::SupportRemoval {
                 enabled: false,
                 ..Default::default()
             };
@@ -453,7 +453,12 @@ fn reference_rejects_bad_input() {
     }
 
     // A model that the voxel grid reduces below 20 points is refused by the C++ side.
-    let sparse = PointCloud::new((0..15).map(|i| [i as f32 * 5.0, 0.0, 0.0]).collect());
+    // (A zig-zag: a straight line is refused before, as degenerate.)
+    let sparse = PointCloud::new(
+        (0..15)
+            .map(|i| [i as f32 * 5.0, (i % 2) as f32 * 5.0, 0.0])
+            .collect(),
+    );
     let e = msg(recognize_reference(&sparse, &scene, &p).unwrap_err());
     assert!(
         e.contains("reference pipeline") && e.contains("voxel grid"),

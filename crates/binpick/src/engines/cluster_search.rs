@@ -44,6 +44,7 @@ struct ClusterOutcome {
 
 /// What the engine found in the whole scene: detections in cluster order, one report per
 /// cluster, and the alignment times summed over clusters, ms.
+#[derive(Default)]
 pub(crate) struct Found {
     pub detections: Vec<Detection>,
     pub clusters: Vec<ClusterReport>,
@@ -61,13 +62,14 @@ pub(crate) struct ClusterSearch<'a> {
 }
 
 impl ClusterSearch<'_> {
-    /// Searches every cluster of `world` (point indices per cluster), in parallel.
+    /// Searches every cluster of `world` (point indices per cluster), in parallel. When the
+    /// deadline stops the search, each cluster keeps the parts it had accepted and says where
+    /// it stopped; only other errors fail the call.
     pub(crate) fn run(&self, world: &[Point], clusters: &[Vec<u32>]) -> Result<Found> {
         let outcomes: Vec<ClusterOutcome> = clusters
             .par_iter()
             .enumerate()
             .map(|(i, idx)| {
-                self.deadline.check("cluster alignment")?;
                 let points: Vec<Point> = idx.iter().map(|&k| world[k as usize]).collect();
                 self.search_cluster(i, points)
             })
@@ -89,12 +91,8 @@ impl ClusterSearch<'_> {
 
     /// One cluster: searched whole (the thesis) or, with the pile-search extensions, in
     /// spheres, remainders after each accepted part, and tighter splits of failed groups.
+    /// An interrupted search keeps the parts accepted before the stop.
     fn search_cluster(&self, index: usize, points: Vec<Point>) -> Result<ClusterOutcome> {
-        let p = self.stages;
-        let pile = &p.pile;
-        let model_points = self.model.cloud.len();
-        let (min_size, _) = cluster::size_range(&p.clustering, model_points);
-        let min_explained = (min_size as usize / 2).max(1);
         let mut out = ClusterOutcome {
             report: ClusterReport {
                 index,
@@ -107,13 +105,43 @@ impl ClusterSearch<'_> {
             initial_ms: 0.0,
             final_ms: 0.0,
         };
+        let search = self.search_regions(index, &points, &mut out);
+        let last = match self.deadline.partial(search)? {
+            Some(last) => last,
+            None => match self.deadline.report_now() {
+                Some(i) => SearchStop::Interrupted {
+                    cause: i.cause,
+                    stage: i.stage,
+                },
+                None => SearchStop::NoCandidate,
+            },
+        };
+        out.report.detections = out.detections.len();
+        out.report.outcome = last.outcome(out.detections.len());
+        Ok(out)
+    }
+
+    /// The search loop of [`search_cluster`](Self::search_cluster): accepted parts go to
+    /// `out` as they are found; returns why the search stopped.
+    fn search_regions(
+        &self,
+        index: usize,
+        points: &[Point],
+        out: &mut ClusterOutcome,
+    ) -> Result<SearchStop> {
+        let p = self.stages;
+        let pile = &p.pile;
+        let model_points = self.model.cloud.len();
+        let (min_size, _) = cluster::size_range(&p.clustering, model_points);
+        let min_explained = (min_size as usize / 2).max(1);
+        self.deadline.check("cluster alignment")?;
         let tolerance = p.cluster_tolerance_mm();
         // (point indices into the cluster, the clustering tolerance that made them, mm) still
         // to search.
         let mut queue: VecDeque<(Vec<u32>, f64)> = if pile.sphere_search
             && points.len() as f64 > pile.sphere_split_factor * model_points as f64
         {
-            spheres(&points, self.model.radius_mm, pile, min_size)?
+            spheres(points, self.model.radius_mm, pile, min_size)?
                 .into_iter()
                 .map(|r| (r, tolerance))
                 .collect()
@@ -131,7 +159,7 @@ impl ClusterSearch<'_> {
             }
             self.deadline.check("cluster alignment")?;
             let region: Vec<Point> = part.iter().map(|&i| points[i as usize]).collect();
-            match self.search_region(index, &region, &mut out)? {
+            match self.search_region(index, &region, out)? {
                 Ok(pose) => {
                     last = SearchStop::Accepted;
                     if !pile.touching_parts {
@@ -139,7 +167,7 @@ impl ClusterSearch<'_> {
                     }
                     let mut mine = vec![false; points.len()];
                     let d = p.validation.outlier_distance_mm;
-                    mark_explained(&points, &self.model.cloud, &pose, d, &mut mine)?;
+                    mark_explained(points, &self.model.cloud, &pose, d, &mut mine)?;
                     let rest: Vec<u32> = part
                         .iter()
                         .copied()
@@ -150,7 +178,7 @@ impl ClusterSearch<'_> {
                         continue;
                     }
                     if rest.len() >= min_size as usize {
-                        let groups = recluster(&points, &rest, min_size, tol)?;
+                        let groups = recluster(points, &rest, min_size, tol)?;
                         queue.extend(groups.into_iter().map(|s| (s, tol)));
                     }
                 }
@@ -159,7 +187,7 @@ impl ClusterSearch<'_> {
                     let tighter = (tol * pile.recluster_tolerance_factor)
                         .max(pile.recluster_min_tolerance_factor * p.preprocess.resolution());
                     if pile.tighter_recluster && part.len() > model_points && tighter < tol {
-                        let subs = recluster(&points, &part, min_size, tighter)?;
+                        let subs = recluster(points, &part, min_size, tighter)?;
                         if subs.len() > 1 {
                             queue.extend(subs.into_iter().map(|s| (s, tighter)));
                         }
@@ -167,9 +195,7 @@ impl ClusterSearch<'_> {
                 }
             }
         }
-        out.report.detections = out.detections.len();
-        out.report.outcome = last.outcome(out.detections.len());
-        Ok(out)
+        Ok(last)
     }
 
     /// Algorithm 1 (or 2) on one region of a cluster, step by step (thesis 4.1). A region
@@ -229,7 +255,7 @@ impl ClusterSearch<'_> {
                 &p.icp,
                 &p.validation,
                 resolution,
-            );
+            )?;
             out.final_ms += ms(t.elapsed());
             if accept(&fin, &p.validation) {
                 // Step 5: the detection, final x initial pose.
@@ -251,6 +277,7 @@ impl ClusterSearch<'_> {
                     icp: fin.icp,
                     height_mm: height_mm(&fin.pose, &self.model.final_keypoints, p.ranking.up),
                     rank_reason: String::new(),
+                    grasps: Vec::new(),
                 });
                 return Ok(Ok(fin.pose));
             }

@@ -37,6 +37,7 @@ pub enum Algorithm {
 }
 
 impl Algorithm {
+    /// The thesis's number of the algorithm: 1 or 2.
     pub fn number(self) -> u8 {
         match self {
             Algorithm::SeparatedFpfh => 1,
@@ -72,26 +73,37 @@ pub struct Params {
     /// search of touching parts, shared RANSAC draws, no duplicate suppression, ...; see
     /// [`Params::stages`]). Default false.
     pub thesis_strict: bool,
+    /// Stage 1: crop, strays, units check, voxel grid, support removal.
     #[serde(flatten)]
     pub preprocess: PreprocessConfig,
+    /// Stage 2 (thesis engine): Euclidean clustering.
     #[serde(flatten)]
     pub clustering: ClusteringConfig,
+    /// Stage 3 (thesis engine): keypoints, normals and FPFH descriptors.
     #[serde(flatten)]
     pub features: FeatureConfig,
+    /// Stage 4 (thesis engine): RANSAC consensus of the initial alignment.
     #[serde(flatten)]
     pub consensus: ConsensusConfig,
+    /// Stage 5: ICP, the final alignment.
     #[serde(flatten)]
     pub icp: IcpConfig,
+    /// Acceptance thresholds of the validation scores (thesis 3.1).
     #[serde(flatten)]
     pub validation: ValidationConfig,
+    /// Thesis engine: searching clusters that hold several touching parts.
     #[serde(flatten)]
     pub pile: PileSearchConfig,
+    /// Stage 6: duplicate suppression, pick order and grasp corridors.
     #[serde(flatten)]
     pub ranking: RankingConfig,
+    /// Scene-voting engine: point-pair-feature voting.
     #[serde(flatten)]
     pub voting: VotingConfig,
+    /// Scene-voting engine: verification against the sensor's view.
     #[serde(flatten)]
     pub verify: VerifyConfig,
+    /// Threads and time budget.
     #[serde(flatten)]
     pub runtime: RuntimeConfig,
 }
@@ -140,6 +152,7 @@ pub enum Preset {
 }
 
 impl Preset {
+    /// Every preset, in the order `binpick --help` lists them.
     pub const ALL: [Preset; 8] = [
         Preset::Thesis,
         Preset::A,
@@ -151,6 +164,7 @@ impl Preset {
         Preset::ArmC,
     ];
 
+    /// The preset's name as the CLI and TOML spell it (`thesis`, `A`, `arm-C`, ...).
     pub fn name(self) -> &'static str {
         match self {
             Preset::Thesis => "thesis",
@@ -169,7 +183,12 @@ impl Preset {
         let odd_thresholds: Vec<f64> = (0..10).map(|i| f64::from(2 * i + 1)).collect();
         // 5.5: fixed for all conveyor tests.
         // 4.3: the thesis's absolute scale.
-        let mut thesis = Params::default();
+        // The thesis's engine: its configurations were tuned for it, and with its top-view
+        // scanned models the scene-voting engine finds more but picks worse (README, Results).
+        let mut thesis = Params {
+            engine: Engine::Thesis,
+            ..Params::default()
+        };
         thesis.preprocess.resolution_mm = Some(THESIS_RESOLUTION_MM);
         thesis.preprocess.support.distance_mm = Some(THESIS_SUPPORT_DISTANCE_MM);
         let mut conveyor = thesis.clone();
@@ -216,8 +235,11 @@ impl std::str::FromStr for Preset {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("parameter {field} = {value}: {expected}")]
 pub struct ParamError {
+    /// The parameter's name (the TOML key).
     pub field: &'static str,
+    /// Its value as given.
     pub value: String,
+    /// The range it must lie in, in words.
     pub expected: String,
 }
 
@@ -301,6 +323,58 @@ impl Params {
     }
 }
 
+/// The most cells PCL's `UniformSampling` can index: it numbers them with a 32-bit int.
+const PCL_MAX_CELLS: f64 = i32::MAX as f64;
+
+/// Cells of a `leaf` grid over the box `lo..hi` (mm), counted as PCL's grids count them.
+fn grid_cells(leaf: f64, lo: [f64; 3], hi: [f64; 3]) -> f64 {
+    (0..3)
+        .map(|k| (hi[k] / leaf).floor() - (lo[k] / leaf).floor() + 1.0)
+        .product()
+}
+
+/// Rejects a keypoint leaf (`field`) too small for a cloud spanning `lo..hi` (mm): PCL's
+/// `UniformSampling` would overflow its 32-bit cell index and silently merge distant cells.
+/// Checked where the extent is known (the model in `Recognizer::new`, the scene after
+/// preprocessing); the message gives PCL's limit and the smallest leaf that fits.
+pub(crate) fn check_sampling_leaf(
+    field: &'static str,
+    leaf: f64,
+    what: &str,
+    lo: [f64; 3],
+    hi: [f64; 3],
+) -> Result<(), ParamError> {
+    if grid_cells(leaf, lo, hi) <= PCL_MAX_CELLS {
+        return Ok(());
+    }
+    // The smallest leaf that fits, by bisection (cells fall as the leaf grows).
+    let (mut small, mut big) = (leaf, leaf);
+    while grid_cells(big, lo, hi) > PCL_MAX_CELLS {
+        big *= 2.0;
+    }
+    for _ in 0..60 {
+        let mid = 0.5 * (small + big);
+        if grid_cells(mid, lo, hi) > PCL_MAX_CELLS {
+            small = mid;
+        } else {
+            big = mid;
+        }
+    }
+    let span: Vec<String> = (0..3).map(|k| format!("{:.1}", hi[k] - lo[k])).collect();
+    Err(ParamError {
+        field,
+        value: leaf.to_string(),
+        expected: format!(
+            "too small for {what} ({} mm): {:.3e} cells, but PCL's UniformSampling indexes \
+             cells with a 32-bit int (at most {} cells); use at least {:.3} mm",
+            span.join(" x "),
+            grid_cells(leaf, lo, hi),
+            i32::MAX,
+            big
+        ),
+    })
+}
+
 /// `[support]` keys are reported with their table's name.
 fn support_field(field: &'static str) -> &'static str {
     match field {
@@ -369,6 +443,9 @@ mod tests {
 
     #[test]
     fn presets_match_the_thesis_tables() {
+        for preset in Preset::ALL {
+            assert_eq!(preset.params().engine, Engine::Thesis, "{}", preset.name());
+        }
         let c3 = Preset::C3.params();
         assert_eq!(
             (c3.features.initial_leaf_mm, c3.icp.final_leaf_mm),

@@ -242,7 +242,7 @@ impl<T: ?Sized> Check<T> for Any {
 
 /// Declares a stage config: a struct whose fields each carry their doc, default and check:
 ///
-/// ```ignore
+/// ```text
 /// stage_config! {
 ///     /// Doc of the struct.
 ///     pub struct Clustering {

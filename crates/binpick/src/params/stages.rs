@@ -10,7 +10,9 @@ use super::spec::{Check, stage_config};
 /// before anything else.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RegionOfInterest {
+    /// Lower corner, mm.
     pub min_mm: [f64; 3],
+    /// Upper corner, mm.
     pub max_mm: [f64; 3],
 }
 
@@ -42,6 +44,7 @@ impl Check<Option<RegionOfInterest>> for Roi {
 /// The cloud FPFH neighbourhoods are searched in (thesis 3.3.2 leaves this open).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
+#[non_exhaustive]
 pub enum FeatureSurface {
     /// The uniform keypoints themselves (initial leaf): ~leaf^2 fewer neighbours, so FPFH is
     /// an order of magnitude faster, with descriptors still averaged over the same radius.
@@ -75,8 +78,8 @@ stage_config! {
 }
 
 stage_config! {
-    /// Input checks and scene preprocessing: crop, resolution voxel grid (thesis 4.3 #1),
-    /// support removal.
+    /// Input checks and scene preprocessing: crop, stray-point removal, units check,
+    /// resolution voxel grid (thesis 4.3 #1), support removal.
     pub struct PreprocessConfig {
         /// Scan resolution: voxel-grid leaf applied to scene and model on load, mm (4.3 #1).
         /// None (auto): measured on every scan from its point spacing, and never finer than
@@ -86,6 +89,17 @@ stage_config! {
         /// Optional crop of the scene before anything else.
         #[serde(skip_serializing_if = "Option::is_none")]
         region_of_interest: Option<RegionOfInterest> = None, roi();
+        /// Stray points: after the crop, a scene point with fewer than
+        /// `isolated_min_neighbours` other points within about this distance is dropped (and
+        /// counted) before the extent is measured, so a few spurious returns far away cannot
+        /// stretch the scan's extent. Counted on a grid of cells this size (the point's cell
+        /// and its 26 neighbours), so a point with that many neighbours within this radius is
+        /// always kept. 50 mm drops nothing from our conveyor, bin and Kinect scans (10 mm
+        /// would drop their scanner speckle, and change results), mm.
+        isolated_radius_mm: f64 = 50.0, within(0.1, 10_000.0, "mm");
+        /// See `isolated_radius_mm`: up to this many strays together are dropped; 0 keeps
+        /// every point.
+        isolated_min_neighbours: usize = 5, count(0, 1_000_000, "points (0 = off)");
         /// Supporting-surface removal (`[support]`).
         support: SupportRemoval = SupportRemoval::default(), any();
         /// A cloud whose extent is below this many resolutions is refused as "not in mm".
@@ -277,12 +291,23 @@ stage_config! {
         /// Scene-voting engine: estimated visible fractions in the same band of this width
         /// count as equal and the higher part is picked first.
         visibility_band: f64 = 0.1, within(0.0, 1.0, "");
+        /// Grasps (declared in the model's sidecar): a detection, or the unexplained scan,
+        /// blocks a grasp's approach corridor when at least this many of its points lie in it
+        /// (scan points at the working resolution plus the other part's placed surface
+        /// samples); fewer are taken for noise.
+        grasp_blocking_points: u32 = 3, count(1, 1_000_000, "points");
+        /// Grasps: scan points this close to a detection's own placed surface are that part,
+        /// not obstacles in its corridors, mm. None (auto): the engine's view tolerance
+        /// (scene-voting) or `outlier_distance_mm` (thesis).
+        #[serde(skip_serializing_if = "Option::is_none")]
+        grasp_surface_tolerance_mm: Option<f64> = None, auto(within(0.01, 50.0, "mm"));
     }
 }
 
 /// Which engine finds the parts.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
+#[non_exhaustive]
 pub enum Engine {
     /// Point-pair-feature voting over the whole scene (Drost et al. 2010, Vidal et al. 2018),
     /// verification of every hypothesis against the surface the sensor can see, and a greedy
@@ -294,6 +319,7 @@ pub enum Engine {
 }
 
 impl Engine {
+    /// The engine's name as the CLI and TOML spell it.
     pub fn name(self) -> &'static str {
         match self {
             Engine::SceneVoting => "scene-voting",
@@ -318,6 +344,7 @@ impl std::str::FromStr for Engine {
 /// Where the sensor was, for the scene-voting engine's view of the scene.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case", tag = "kind")]
+#[non_exhaustive]
 pub enum SensorConfig {
     /// A camera at the origin when the scene lies far out along one side of it (a cloud in
     /// its camera's frame, as depth cameras write them), else a scanner far above along `up`.
@@ -326,7 +353,10 @@ pub enum SensorConfig {
     /// A line scanner or far camera looking down `-up` (rays parallel).
     Above,
     /// A camera at `position_mm` (scene frame).
-    Camera { position_mm: [f64; 3] },
+    Camera {
+        /// Where the camera is, scene frame, mm.
+        position_mm: [f64; 3],
+    },
 }
 
 /// A valid sensor config.
@@ -399,8 +429,11 @@ stage_config! {
     pub struct VerifyConfig {
         /// View grid cell, in working resolutions.
         cell_resolutions: f64 = 1.0, within(0.25, 20.0, "x resolution");
-        /// A model surface within this many cells (along the ray) of the scene's is explained.
+        /// A model surface within this many cells (along the ray) of the scene's is explained
+        /// ...
         tolerance_cells: f64 = 1.5, within(0.1, 20.0, "x cell");
+        /// ... or within this many times the scan's noise, when that is wider.
+        tolerance_sigmas: f64 = 3.0, within(0.0, 20.0, "x noise");
         /// ... and only where the surfaces' normals differ by less than this, deg.
         max_normal_angle_deg: f64 = 45.0, within(1.0, 180.0, "deg");
         /// Model surface steeper than this to the sensor's ray is not judged, deg.
@@ -410,6 +443,9 @@ stage_config! {
         min_visibility: f64 = 0.25, within(0.0, 1.0, "");
         /// The sensor may have seen through at most this share of that surface.
         max_free_space: f64 = 0.08, within(0.0, 1.0, "");
+        /// At most this share of the part may lie behind a support plane (sunk into the
+        /// belt, floor or a bin wall by more than three view tolerances).
+        max_below_support: f64 = 0.05, within(0.0, 1.0, "");
         /// The scene's surface may carry on past at most this share of the part's outline
         /// (a real part's outline is a depth edge of the scene).
         max_continued: f64 = 1.0, within(0.0, 1.0, "");
@@ -441,9 +477,13 @@ stage_config! {
     /// How a recognition runs (not what it finds: results do not depend on these).
     pub struct RuntimeConfig {
         /// Worker threads: clusters run in parallel, PCL's OpenMP stages use the same count
-        /// when not nested. 0 = all cores.
+        /// when not nested. Concurrent calls on one recognizer share them (a call alone uses
+        /// all, queued calls split them). 0 = all cores.
         threads: usize = 0, count(0, 1024, "(0 = all cores)");
-        /// Time budget per recognition, ms; exceeding it is an error. None = unlimited.
+        /// Time budget per recognition, ms, counted from the start of the work (a wait for
+        /// worker threads held by other calls is not counted). When it runs out the call
+        /// returns what it verified so far, flagged (`Recognition::interrupted`). None =
+        /// unlimited.
         #[serde(skip_serializing_if = "Option::is_none")]
         time_budget_ms: Option<u64> = None, count(1, 86_400_000, "ms");
     }

@@ -67,17 +67,16 @@ pub(crate) fn spheres(
     let centres =
         binpick_pcl::uniform_sampling(points, (cfg.sphere_spacing_factor * model_radius_mm) as f32)
             .map_err(pcl("sphere centres"))?;
-    let index = NearestIndex::new(points).map_err(|e| input("cluster", e.to_string()))?;
+    let index =
+        NearestIndex::new("cluster", points).map_err(|e| input("cluster", e.to_string()))?;
     let mut out = Vec::new();
     for c in centres {
-        let mut members: Vec<u32> = index
-            .within(
-                &points[c as usize],
-                (cfg.sphere_radius_factor * model_radius_mm) as f32,
-            )
-            .into_iter()
-            .map(|i| i as u32)
-            .collect();
+        let mut members: Vec<u32> = Vec::new();
+        index.within_into(
+            &points[c as usize],
+            (cfg.sphere_radius_factor * model_radius_mm) as f32,
+            &mut members,
+        );
         members.sort_unstable();
         if members.len() >= min_size as usize {
             out.push(members);
@@ -99,7 +98,7 @@ pub(crate) fn mark_explained(
         .iter()
         .map(|q| binpick_cloud::transform_point(pose, q))
         .collect();
-    let index = NearestIndex::new(&placed).map_err(|e| input("model", e.to_string()))?;
+    let index = NearestIndex::new("model", &placed).map_err(|e| input("model", e.to_string()))?;
     let limit = (outlier_distance_mm * outlier_distance_mm) as f32;
     for (e, q) in explained.iter_mut().zip(points) {
         if !*e && index.nearest(q).1 <= limit {

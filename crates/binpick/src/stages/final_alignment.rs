@@ -33,7 +33,7 @@ impl FinalWorld {
         };
         Ok(Self {
             pcl: IndexedCloud::new(&pts).map_err(pcl("final keypoints upload"))?,
-            index: NearestIndex::new(&pts).map_err(|e| input("scene", e.to_string()))?,
+            index: NearestIndex::new("scene", &pts).map_err(|e| input("scene", e.to_string()))?,
             dense,
         })
     }
@@ -67,6 +67,8 @@ pub(crate) fn icp_settings(cfg: &IcpConfig, initial: &Isometry3<f64>) -> IcpPara
 /// cluster), then the percent-of-outliers score; the ICP pose is adopted only if it scores
 /// better (3d). The returned pose is final x initial (step 5). With the fine-pass extension
 /// (`icp_refine`) a part that is accepted or nearly so gets a second ICP at scan resolution.
+/// A failed ICP keeps the initial pose (reported in `icp.error`); only an interruption
+/// (time budget, cancellation) is an error.
 pub(crate) fn final_alignment(
     model_keypoints: &[Point],
     model_cloud: &[Point],
@@ -75,7 +77,7 @@ pub(crate) fn final_alignment(
     cfg: &IcpConfig,
     validation: &ValidationConfig,
     resolution_mm: f64,
-) -> FinalAlignment {
+) -> Result<FinalAlignment> {
     let d = validation.outlier_distance_mm;
     let kp = model_keypoints;
     let before = outlier_percent(&world.index, kp, initial, d);
@@ -100,6 +102,7 @@ pub(crate) fn final_alignment(
                 result.icp.adopted = adopt_if_better(world, kp, d, &mut result, pose);
             }
         }
+        Err(e @ binpick_pcl::Error::Interrupted { .. }) => return Err(pcl("ICP")(e)),
         Err(e) => result.icp.error = Some(e.to_string()),
     }
     // Fine pass, only for a part that is accepted or nearly so (within `icp_refine_below_factor`
@@ -121,14 +124,19 @@ pub(crate) fn final_alignment(
                 relative_mse: 0.0,
             },
         );
-        if let Ok(out) = fine {
-            result.icp.iterations += out.iterations;
-            if let Some(pose) = out.pose() {
-                result.icp.adopted |= adopt_if_better(world, kp, d, &mut result, pose);
+        match fine {
+            Ok(out) => {
+                result.icp.iterations += out.iterations;
+                if let Some(pose) = out.pose() {
+                    result.icp.adopted |= adopt_if_better(world, kp, d, &mut result, pose);
+                }
             }
+            Err(e @ binpick_pcl::Error::Interrupted { .. }) => return Err(pcl("fine ICP")(e)),
+            // As before the fine pass: it is an extension, its failure keeps the ICP pose.
+            Err(_) => {}
         }
     }
-    result
+    Ok(result)
 }
 
 /// Step 4: a final alignment is accepted when its percent of outliers is under

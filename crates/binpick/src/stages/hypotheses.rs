@@ -8,6 +8,7 @@ use nalgebra::{Isometry3, Point3};
 use binpick_cloud::Point;
 use binpick_match::{
     OrientedPoints, PointIndex, PoseCluster, PoseClustering, PpfConfig, PpfModel, cluster_poses,
+    subsample_by_facing,
 };
 use binpick_pcl::IcpParams;
 
@@ -21,6 +22,7 @@ use crate::stages::part::Part;
 pub(crate) fn matching(stage: &'static str) -> impl Fn(binpick_match::MatchError) -> Error {
     move |e| Error::Input {
         what: stage,
+        kind: crate::error::InputKind::Degenerate,
         message: e.to_string(),
     }
 }
@@ -28,8 +30,13 @@ pub(crate) fn matching(stage: &'static str) -> impl Fn(binpick_match::MatchError
 /// Model points a near-symmetry is judged on.
 const SYMMETRY_SAMPLE_POINTS: usize = 600;
 
+/// A near-symmetric turn within this angle ...
+const DECLARED_SAME_DEG: f64 = 10.0;
+/// ... and this share of the diameter of a declared symmetry is that symmetry.
+const DECLARED_SAME_DIAMETERS: f64 = 0.05;
+
 /// The part prepared for one working scale.
-#[derive(Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub(crate) struct VotingModel {
     /// The part's surface at the working resolution (what is rendered and aligned).
     pub dense: OrientedPoints,
@@ -43,8 +50,10 @@ pub(crate) struct VotingModel {
 impl VotingModel {
     /// Samples the part at `scale` and files its point pairs.
     pub(crate) fn new(part: &Part, scale: &DerivedScale, cfg: &VotingConfig) -> Result<Self> {
-        let dense = subsample(&part.surface, scale.resolution_mm)?;
-        let samples = subsample(&dense, scale.sampling_step_mm)?;
+        // Both sides of a thin part must survive the sampling (each face is seen from its own
+        // side): sampled per facing, not per cell.
+        let dense = subsample_by_facing(&part.surface, scale.resolution_mm);
+        let samples = subsample_by_facing(&dense, scale.sampling_step_mm);
         let table = PpfModel::new(
             &samples,
             PpfConfig {
@@ -74,7 +83,18 @@ impl VotingModel {
                 batch_correspondences: true,
                 relative_mse: 1e-4,
             },
-        )?;
+        )?
+        .into_iter()
+        // A declared symmetry is not a trap (a ring's half turn is one).
+        .filter(|turn| {
+            part.symmetries.transforms().iter().all(|s| {
+                let moved = s.inverse() * turn;
+                moved.rotation.angle().to_degrees() > DECLARED_SAME_DEG
+                    || moved.translation.vector.norm()
+                        > DECLARED_SAME_DIAMETERS * part.size.diameter_mm
+            })
+        })
+        .collect();
         Ok(Self {
             centre: part.centre(),
             dense,

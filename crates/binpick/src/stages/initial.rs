@@ -11,7 +11,7 @@ use binpick_cloud::Point;
 use binpick_pcl::{Consensus, Correspondence};
 
 use crate::deadline::Deadline;
-use crate::error::{Error, Result, input, pcl};
+use crate::error::{Result, input, pcl};
 use crate::params::{Algorithm, ConsensusConfig};
 use crate::result::SearchStop;
 use crate::stages::features::ClusterFeatures;
@@ -58,7 +58,8 @@ pub(crate) struct ClusterKeypoints<'a> {
 impl<'a> ClusterKeypoints<'a> {
     pub(crate) fn new(features: &'a ClusterFeatures) -> Result<Self> {
         let points = &features.keypoints;
-        let index = NearestIndex::new(points).map_err(|e| input("cluster", e.to_string()))?;
+        let index =
+            NearestIndex::new("cluster", points).map_err(|e| input("cluster", e.to_string()))?;
         Ok(Self { points, index })
     }
 }
@@ -377,10 +378,7 @@ fn usable_consensus(run: binpick_pcl::Result<Consensus>) -> Result<Option<Consen
         Err(
             binpick_pcl::Error::NoConsensus { .. } | binpick_pcl::Error::ImproperRotation { .. },
         ) => Ok(None),
-        Err(e) => Err(Error::Pcl {
-            stage: "RANSAC rejection",
-            source: e,
-        }),
+        Err(e) => Err(pcl("RANSAC rejection")(e)),
     }
 }
 
@@ -397,12 +395,7 @@ fn svd_and_score(
     let m = match binpick_pcl::estimate_svd(&model.initial_keypoints, cluster.points, kept) {
         Ok(m) => m,
         Err(binpick_pcl::Error::ImproperRotation { .. }) => return Ok(None),
-        Err(e) => {
-            return Err(Error::Pcl {
-                stage: "SVD",
-                source: e,
-            });
-        }
+        Err(e) => return Err(pcl("SVD")(e)),
     };
     let Some(pose) = binpick_pcl::rigid_pose(&m) else {
         return Ok(None);

@@ -6,7 +6,7 @@ use binpick_pcl::{IcpParams, IndexedCloud};
 use nalgebra::{Isometry3, Matrix3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
-use crate::error::{Result, input, pcl};
+use crate::error::{InputKind, Result, input_as, pcl};
 use crate::params::Params;
 use crate::stages::features::{RadiusFeatures, feature_surface, fpfh_for_radius, keypoints};
 use crate::stages::final_alignment::icp_settings;
@@ -48,8 +48,9 @@ impl PreparedModel {
         let cloud = binpick_pcl::voxel_grid(&model.points, resolution_mm as f32)
             .map_err(pcl("model voxel grid"))?;
         if cloud.len() < cfg.min_model_points {
-            return Err(input(
+            return Err(input_as(
                 "model",
+                InputKind::Degenerate,
                 format!(
                     "only {} points remain after the {} mm voxel grid (need {}); \
                      is the resolution too coarse or the cloud in the wrong units?",
@@ -62,8 +63,9 @@ impl PreparedModel {
         let kp_idx = keypoints(&cloud, cfg.initial_leaf_mm)?;
         let initial_keypoints: Vec<Point> = kp_idx.iter().map(|&i| cloud[i as usize]).collect();
         if initial_keypoints.len() < 3 {
-            return Err(input(
+            return Err(input_as(
                 "model",
+                InputKind::Degenerate,
                 format!(
                     "{} keypoints at the {} mm initial leaf; at least 3 are needed",
                     initial_keypoints.len(),
@@ -87,8 +89,9 @@ impl PreparedModel {
             })
             .collect::<Result<Vec<_>>>()?;
         if let Some(f) = features.iter().find(|f| f.descriptors.len() < 3) {
-            return Err(input(
+            return Err(input_as(
                 "model",
+                InputKind::Degenerate,
                 format!(
                     "only {} keypoints have an FPFH descriptor at radius {} mm",
                     f.descriptors.len(),

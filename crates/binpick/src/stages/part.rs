@@ -2,12 +2,15 @@
 //! the part's own frame, its size, and its symmetries. A scanned model (one view of the part)
 //! and a CAD mesh (the whole surface) both end up here.
 
+use std::sync::Arc;
+
 use nalgebra::{Isometry3, Point3};
 
 use binpick_cloud::{Point, PointCloud};
 use binpick_match::{OrientedPoints, Symmetries};
 
-use crate::error::{Result, input, pcl};
+use crate::error::{InputKind, Result, input_as, pcl};
+use crate::prepared::PreparedVoting;
 use crate::stages::model::diameter;
 use crate::stages::scale::{PartSize, measure_spacing};
 
@@ -19,6 +22,7 @@ const SCAN_NORMAL_RADIUS_GAPS: f64 = 3.0;
 /// Where a part model came from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
+#[non_exhaustive]
 pub enum PartSource {
     /// One view of the part, scanned: only that side exists.
     Scan,
@@ -27,15 +31,24 @@ pub enum PartSource {
 }
 
 /// A part model in its own frame, mm.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct Part {
     /// Dense surface points with outward normals.
     pub surface: OrientedPoints,
     /// The points as given (the thesis engine works on these).
     pub cloud: PointCloud,
+    /// Its diameter and the area one view shows.
     pub size: PartSize,
+    /// Rigid transforms mapping it onto itself.
     pub symmetries: Symmetries,
+    /// Scan or mesh.
     pub source: PartSource,
+    /// Where a gripper may take it (model frame; from the sidecar's `grasps`).
+    pub grasps: Vec<crate::grasp::Grasp>,
+    /// Scene-voting models read from a prepared-model file (see [`crate::prepared`]).
+    #[serde(skip)]
+    pub(crate) prepared: Option<Arc<PreparedVoting>>,
 }
 
 impl Part {
@@ -43,8 +56,9 @@ impl Part {
     /// face it). `threads` for PCL's normal estimation (0 = all).
     pub fn from_scan(cloud: &PointCloud, viewpoint: [f64; 3], threads: u32) -> Result<Self> {
         let spacing = measure_spacing(&cloud.points)?.ok_or_else(|| {
-            input(
+            input_as(
                 "model",
+                InputKind::Degenerate,
                 format!("{} point(s): too few to measure its spacing", cloud.len()),
             )
         })?;
@@ -84,8 +98,9 @@ impl Part {
         source: PartSource,
     ) -> Result<Self> {
         if surface.len() < 20 {
-            return Err(input(
+            return Err(input_as(
                 "model",
+                InputKind::Degenerate,
                 format!(
                     "only {} points with a surface normal; at least 20 are needed",
                     surface.len()
@@ -96,7 +111,11 @@ impl Part {
         let sample: Vec<Point> = surface.points.iter().step_by(step).copied().collect();
         let diameter_mm = diameter(&sample);
         if diameter_mm.is_nan() || diameter_mm <= 0.0 {
-            return Err(input("model", "all points coincide"));
+            return Err(input_as(
+                "model",
+                InputKind::Degenerate,
+                "all points coincide",
+            ));
         }
         Ok(Self {
             surface,
@@ -107,6 +126,8 @@ impl Part {
             },
             symmetries: Symmetries::none(),
             source,
+            grasps: Vec::new(),
+            prepared: None,
         })
     }
 
@@ -114,6 +135,15 @@ impl Part {
     pub fn with_symmetries(mut self, symmetries: Symmetries) -> Self {
         self.symmetries = symmetries;
         self
+    }
+
+    /// The same part with grasps (model frame), each checked.
+    pub fn with_grasps(mut self, grasps: Vec<crate::grasp::Grasp>) -> Result<Self> {
+        for (k, g) in grasps.iter().enumerate() {
+            g.validate(k)?;
+        }
+        self.grasps = grasps;
+        Ok(self)
     }
 
     /// Centroid of the surface points (model frame).

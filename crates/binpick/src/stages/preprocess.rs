@@ -1,48 +1,59 @@
-//! Stage 1, preprocessing: the units check, region of interest, resolution voxel grid (thesis
-//! 4.3 #1) and removal of the supporting surface (5.2), each step reporting how many points it
-//! removed.
+//! Stage 1, preprocessing, in this order: the region of interest, stray-point removal, the
+//! units check (on what is left), the resolution voxel grid (thesis 4.3 #1) and the removal
+//! of the supporting surface (5.2), each step reporting how many points it removed. Cropping
+//! and dropping strays come first so that a spurious return far away (or at 1e30) can neither
+//! fail the units check nor blow up the voxel grid.
+
+use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hasher};
 
 use binpick_cloud::{Point, PointCloud};
 
-use crate::error::{Result, input, pcl};
-use crate::params::{PreprocessConfig, SupportRemoval};
+use crate::deadline::Deadline;
+use crate::error::{InputKind, Result, input_as, pcl};
+use crate::params::{PreprocessConfig, RegionOfInterest};
 use crate::result::{PreprocessReport, RemovedPlane};
 
-/// Refuses empty clouds, non-finite points and extents that mean the cloud is not in mm
-/// (both engines word it the same).
+/// Refuses empty clouds, non-finite points, degenerate clouds (one point, all at one
+/// position, all on one line: `PointCloud::degeneracy`, worded as such rather than as a units
+/// problem) and extents that mean the cloud is not in mm (both engines word it the same).
 pub(crate) fn check_units(
     what: &'static str,
     cloud: &PointCloud,
     cfg: &PreprocessConfig,
 ) -> Result<()> {
     if cloud.is_empty() {
-        return Err(input(what, "the cloud is empty"));
+        return Err(input_as(what, InputKind::EmptyCloud, "the cloud is empty"));
     }
     if let Some(i) = cloud.first_non_finite() {
-        return Err(input(
+        return Err(input_as(
             what,
+            InputKind::NonFinite,
             format!("point {i} has a non-finite coordinate"),
         ));
     }
-    let extent = cloud
-        .bounds()
-        .map(|b| f64::from(b.diagonal()))
-        .unwrap_or(0.0);
+    if let Some(d) = cloud.degeneracy() {
+        return Err(input_as(what, InputKind::Degenerate, d.to_string()));
+    }
+    let (lo, hi) = bounds(&cloud.points);
+    let extent = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt();
     let min = cfg.min_extent_resolutions * cfg.resolution();
     if extent < min {
-        return Err(input(
+        return Err(input_as(
             what,
+            InputKind::WrongUnits,
             format!(
                 "its extent is {extent:.4} mm, smaller than {} x the {} mm resolution: \
-                 the cloud looks like it is in metres (binpick works in millimetres; use --units m or units = \"m\")",
+                 the cloud looks like it is in metres (binpick works in millimetres; set units = \"m\")",
                 cfg.min_extent_resolutions,
                 cfg.resolution()
             ),
         ));
     }
     if extent > cfg.max_extent_mm {
-        return Err(input(
+        return Err(input_as(
             what,
+            InputKind::WrongUnits,
             format!(
                 "its extent is {extent:.0} mm (> {} m): wrong units? binpick expects millimetres",
                 cfg.max_extent_mm / 1000.0
@@ -52,87 +63,256 @@ pub(crate) fn check_units(
     Ok(())
 }
 
-/// Crops, voxelises (thesis 4.3 #1) and strips support planes. `model_points` (voxelised
-/// model size) sets the smallest plane that counts as support; support patches are connected
-/// at the clustering tolerance `tolerance_mm`; `threads` split the plane fits' inlier counts
-/// (the result does not depend on them).
+/// How big one part is, for telling support from parts: a plane patch is support when it is
+/// larger than `min_points_factor` x this.
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum SupportSize {
+    /// The model's point count at the resolution (the thesis engine; the C++ reference does
+    /// the same).
+    Points(usize),
+    /// The area one view of the part shows, mm^2: patches are measured by the area they
+    /// cover, so a bin wall the sensor sees at a grazing angle (few points) still counts.
+    AreaMm2(f64),
+}
+
+/// Per-axis minimum and maximum, mm.
+pub(crate) fn bounds(points: &[Point]) -> ([f64; 3], [f64; 3]) {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for p in points {
+        for k in 0..3 {
+            lo[k] = lo[k].min(f64::from(p[k]));
+            hi[k] = hi[k].max(f64::from(p[k]));
+        }
+    }
+    (lo, hi)
+}
+
+/// The scene points left for the voxel grid: cropped to the region of interest, without
+/// strays, checked for units. Shared by both engines; fills the report's counts.
+pub(crate) fn clean_scene(
+    scene: &PointCloud,
+    cfg: &PreprocessConfig,
+    deadline: &Deadline,
+    report: &mut PreprocessReport,
+) -> Result<Vec<Point>> {
+    report.input_points = scene.len();
+    if scene.is_empty() {
+        return Err(input_as(
+            "scene",
+            InputKind::EmptyCloud,
+            "the cloud is empty",
+        ));
+    }
+    let cropped = PointCloud::new(match &cfg.region_of_interest {
+        None => scene.points.clone(),
+        Some(roi) => crop(&scene.points, roi),
+    });
+    report.outside_roi = scene.len() - cropped.len();
+    if cropped.is_empty() {
+        return Err(input_as(
+            "scene",
+            InputKind::EmptyCloud,
+            "no point lies inside the region of interest",
+        ));
+    }
+    // A non-finite point is never inside a region of interest; without one it is an error.
+    if let Some(i) = scene
+        .first_non_finite()
+        .filter(|_| cfg.region_of_interest.is_none())
+    {
+        return Err(input_as(
+            "scene",
+            InputKind::NonFinite,
+            format!("point {i} has a non-finite coordinate"),
+        ));
+    }
+    deadline.check("preprocessing")?;
+    let kept = PointCloud::new(drop_isolated(
+        &cropped.points,
+        cfg.isolated_radius_mm,
+        cfg.isolated_min_neighbours,
+        deadline,
+    )?);
+    report.isolated_removed = cropped.len() - kept.len();
+    if kept.is_empty() {
+        // A single point or a cloud in metres says so first.
+        check_units("scene", &cropped, cfg)?;
+        return Err(input_as(
+            "scene",
+            InputKind::EmptyCloud,
+            format!(
+                "all {} points are isolated (fewer than {} neighbours within {} mm)",
+                cropped.len(),
+                cfg.isolated_min_neighbours,
+                cfg.isolated_radius_mm
+            ),
+        ));
+    }
+    check_units("scene", &kept, cfg)?;
+    Ok(kept.points)
+}
+
+/// The points inside `roi` (bounds included), in order. Non-finite points are never inside.
+fn crop(points: &[Point], roi: &RegionOfInterest) -> Vec<Point> {
+    points
+        .iter()
+        .filter(|p| {
+            (0..3).all(|k| f64::from(p[k]) >= roi.min_mm[k] && f64::from(p[k]) <= roi.max_mm[k])
+        })
+        .copied()
+        .collect()
+}
+
+/// Crops, drops strays, checks units, voxelises (thesis 4.3 #1) and strips support planes,
+/// filling `report` as it goes (an interrupted call reports the steps done). `model_points`
+/// (voxelised model size) sets the smallest plane that counts as support; support patches are
+/// connected at the clustering tolerance `tolerance_mm`; `threads` split the plane fits'
+/// inlier counts (the result does not depend on them).
 pub(crate) fn preprocess(
     scene: &PointCloud,
     cfg: &PreprocessConfig,
     tolerance_mm: f64,
     model_points: usize,
     threads: usize,
-) -> Result<(Vec<Point>, PreprocessReport)> {
-    let (points, support, report) =
-        preprocess_keeping_support(scene, cfg, tolerance_mm, model_points, threads)?;
-    let world = points
+    deadline: &Deadline,
+    report: &mut PreprocessReport,
+) -> Result<Vec<Point>> {
+    let cleaned = clean_scene(scene, cfg, deadline, report)?;
+    let (points, support) = voxelise_keeping_support(
+        &cleaned,
+        cfg,
+        tolerance_mm,
+        SupportSize::Points(model_points),
+        threads,
+        deadline,
+        report,
+    )?;
+    Ok(points
         .into_iter()
         .zip(support)
         .filter_map(|(p, s)| (!s).then_some(p))
-        .collect();
-    Ok((world, report))
+        .collect())
 }
 
-/// Like [`preprocess`], but keeps the support: every voxelised point, with a flag per point
-/// that says whether it was removed as support (belt, floor, wall). The scene-voting engine
-/// needs the support to know what the sensor saw behind the parts.
-pub(crate) fn preprocess_keeping_support(
-    scene: &PointCloud,
+/// The voxel grid and support search of [`preprocess`] on points [`clean_scene`] returned,
+/// keeping the support: every voxelised point, with a flag per point that says whether it
+/// was removed as support (belt, floor, wall). The scene-voting engine needs the support to
+/// know what the sensor saw behind the parts.
+pub(crate) fn voxelise_keeping_support(
+    cleaned: &[Point],
     cfg: &PreprocessConfig,
     tolerance_mm: f64,
-    model_points: usize,
+    part: SupportSize,
     threads: usize,
-) -> Result<(Vec<Point>, Vec<bool>, PreprocessReport)> {
-    let mut report = PreprocessReport {
-        input_points: scene.len(),
-        ..Default::default()
-    };
-    if scene.is_empty() {
-        return Err(input("scene", "the cloud is empty"));
-    }
-    if let Some(i) = scene.first_non_finite() {
-        return Err(input(
-            "scene",
-            format!("point {i} has a non-finite coordinate"),
-        ));
-    }
-    let cropped: Vec<Point> = match &cfg.region_of_interest {
-        None => scene.points.clone(),
-        Some(roi) => scene
-            .points
-            .iter()
-            .filter(|p| {
-                (0..3).all(|k| f64::from(p[k]) >= roi.min_mm[k] && f64::from(p[k]) <= roi.max_mm[k])
-            })
-            .copied()
-            .collect(),
-    };
-    report.outside_roi = scene.len() - cropped.len();
-    if cropped.is_empty() {
-        return Err(input(
-            "scene",
-            "no point lies inside the region of interest",
-        ));
-    }
-    let points = binpick_pcl::voxel_grid(&cropped, cfg.resolution() as f32)
+    deadline: &Deadline,
+    report: &mut PreprocessReport,
+) -> Result<(Vec<Point>, Vec<bool>)> {
+    deadline.check("preprocessing")?;
+    let points = binpick_pcl::voxel_grid(cleaned, cfg.resolution() as f32)
         .map_err(pcl("scene voxel grid"))?;
-    report.voxel_merged = cropped.len() - points.len();
-
+    report.voxel_merged = cleaned.len() - points.len();
     let support = if cfg.support.enabled {
-        find_support(
-            &points,
-            &cfg.support,
-            cfg.resolution(),
-            tolerance_mm,
-            model_points,
-            threads,
-            &mut report,
-        )?
+        find_support(&points, cfg, tolerance_mm, part, threads, deadline, report)?
     } else {
         vec![false; points.len()]
     };
     report.remaining = support.iter().filter(|s| !**s).count();
-    Ok((points, support, report))
+    Ok((points, support))
+}
+
+/// A point with fewer than `min_neighbours` other points in its cell of `radius_mm` and the 26
+/// cells around it is a stray and dropped (0 = keep all). The block of 27 cells holds every
+/// point within `radius_mm`, so any point with `min_neighbours` neighbours within the radius
+/// is kept (this drops a subset of what PCL's `RadiusOutlierRemoval` with that radius and
+/// count would). A grid rather than PCL's filter: it must run before the extent is known and
+/// before any PCL call (a point at 1e30 overflows kd-tree distances and voxel indices), it is
+/// linear in the points (no kd-tree over a 5 M-point scan), and it counts integers, so the
+/// answer does not depend on point order or thread count.
+pub(crate) fn drop_isolated(
+    points: &[Point],
+    radius_mm: f64,
+    min_neighbours: usize,
+    deadline: &Deadline,
+) -> Result<Vec<Point>> {
+    if min_neighbours == 0 || points.is_empty() {
+        return Ok(points.to_vec());
+    }
+    type Cells<V> = HashMap<[i64; 3], V, BuildHasherDefault<CellHasher>>;
+    // Saturating: cells beyond i64 (points near 1e30) share the extreme cell.
+    let cell = |p: &Point| p.map(|c| (f64::from(c) / radius_mm).floor() as i64);
+    let mut counts: Cells<usize> = Cells::default();
+    for (i, p) in points.iter().enumerate() {
+        if i % POLL_POINTS == 0 {
+            deadline.check("stray-point removal")?;
+        }
+        *counts.entry(cell(p)).or_insert(0) += 1;
+    }
+    let need = min_neighbours.saturating_add(1); // the point itself is in its block
+    let mut block: Cells<bool> = Cells::default();
+    let mut keep = Vec::with_capacity(points.len());
+    for (i, p) in points.iter().enumerate() {
+        if i % POLL_POINTS == 0 {
+            deadline.check("stray-point removal")?;
+        }
+        let c = cell(p);
+        let ok = counts.get(&c).is_some_and(|&n| n >= need)
+            || *block
+                .entry(c)
+                .or_insert_with(|| block_count(&counts, c) >= need);
+        keep.push(ok);
+    }
+    Ok(points
+        .iter()
+        .zip(keep)
+        .filter_map(|(p, k)| k.then_some(*p))
+        .collect())
+}
+
+/// Points between two deadline checks in per-point loops (about a millisecond).
+const POLL_POINTS: usize = 1 << 16;
+
+/// Points in `c` and the 26 cells around it (each cell once, also at the saturated edges).
+fn block_count<S: std::hash::BuildHasher>(
+    counts: &HashMap<[i64; 3], usize, S>,
+    c: [i64; 3],
+) -> usize {
+    let mut cells = Vec::with_capacity(27);
+    for dx in -1..=1i64 {
+        for dy in -1..=1i64 {
+            for dz in -1..=1i64 {
+                cells.push([
+                    c[0].saturating_add(dx),
+                    c[1].saturating_add(dy),
+                    c[2].saturating_add(dz),
+                ]);
+            }
+        }
+    }
+    cells.sort_unstable();
+    cells.dedup();
+    cells.iter().filter_map(|k| counts.get(k)).sum()
+}
+
+/// FxHash-style hasher for integer cell keys (the default SipHash is several times slower on
+/// millions of cells and its DoS resistance is not needed here).
+#[derive(Default)]
+struct CellHasher(u64);
+
+impl Hasher for CellHasher {
+    fn write(&mut self, bytes: &[u8]) {
+        for chunk in bytes.chunks(8) {
+            let mut b = [0u8; 8];
+            b[..chunk.len()].copy_from_slice(chunk);
+            self.write_u64(u64::from_le_bytes(b));
+        }
+    }
+    fn write_u64(&mut self, x: u64) {
+        self.0 = (self.0.rotate_left(5) ^ x).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
+    }
+    fn finish(&self) -> u64 {
+        self.0
+    }
 }
 
 /// Removes supporting planes. A RANSAC plane is support only where its inliers form a
@@ -143,20 +323,28 @@ pub(crate) fn preprocess_keeping_support(
 /// scene.
 fn find_support(
     points: &[Point],
-    support: &SupportRemoval,
-    resolution_mm: f64,
+    cfg: &PreprocessConfig,
     tolerance: f64,
-    model_points: usize,
+    part: SupportSize,
     threads: usize,
+    deadline: &Deadline,
     report: &mut PreprocessReport,
 ) -> Result<Vec<bool>> {
-    let min_patch = (support.min_points_factor * model_points as f64)
-        .ceil()
-        .max(3.0) as usize;
+    let (support, resolution_mm) = (&cfg.support, cfg.resolution());
+    // A patch must beat this many points (Points), or points are only a lower bound on
+    // the fit's size and the area decides (AreaMm2).
+    let (min_patch, min_area) = match part {
+        SupportSize::Points(n) => (
+            (support.min_points_factor * n as f64).ceil().max(3.0) as usize,
+            None,
+        ),
+        SupportSize::AreaMm2(a) => (3, Some(support.min_points_factor * a)),
+    };
     let mut removed = vec![false; points.len()];
     // Indices still eligible for a plane fit.
     let mut candidates: Vec<u32> = (0..points.len() as u32).collect();
     for _ in 0..support.max_planes {
+        deadline.check("support plane fit")?;
         if candidates.len() < min_patch {
             break;
         }
@@ -179,20 +367,43 @@ fn find_support(
             .iter()
             .map(|&i| cand_pts[i as usize])
             .collect();
-        let mut taken = 0;
-        for (k, big) in large_patches(&inlier_pts, plane.coefficients, tolerance, min_patch)
-            .into_iter()
-            .enumerate()
-        {
+        let patches = match min_area {
+            None => large_patches(
+                &inlier_pts,
+                plane.coefficients,
+                tolerance,
+                PatchMin::Points(min_patch),
+            ),
+            Some(area) => {
+                // Points on a plane seen at a grazing angle lie farther apart: connect them at
+                // twice their own gap.
+                let gap =
+                    crate::stages::scale::measure_spacing(&inlier_pts)?.map_or(0.0, |s| s.gap_mm);
+                let cell = tolerance.max(2.0 * gap);
+                large_patches(
+                    &inlier_pts,
+                    plane.coefficients,
+                    cell,
+                    PatchMin::AreaMm2(area),
+                )
+            }
+        };
+        let (mut taken, mut sq) = (0, 0.0f64);
+        let c = plane.coefficients.map(f64::from);
+        for (k, big) in patches.into_iter().enumerate() {
             if big {
                 removed[candidates[plane.inliers[k] as usize] as usize] = true;
                 taken += 1;
+                let p = inlier_pts[k].map(f64::from);
+                sq += (c[0] * p[0] + c[1] * p[1] + c[2] * p[2] + c[3]).powi(2);
             }
         }
+        deadline.check("support plane fit")?;
         if taken > 0 {
             report.support_planes.push(RemovedPlane {
                 coefficients: plane.coefficients,
                 points: taken,
+                rms_mm: min_area.map(|_| (sq / taken as f64).sqrt()),
             });
         }
         let mut is_inlier = vec![false; candidates.len()];
@@ -208,10 +419,18 @@ fn find_support(
     Ok(removed)
 }
 
-/// For points on a plane, whether each belongs to a connected patch of at least `min_points`.
+/// The smallest patch that counts as large.
+#[derive(Clone, Copy, Debug)]
+enum PatchMin {
+    Points(usize),
+    /// Occupied cells times the cell's area.
+    AreaMm2(f64),
+}
+
+/// For points on a plane, whether each belongs to a connected patch at least `min` large.
 /// Connectivity is judged on a 2-D grid in the plane (cells of `cell_mm`, 8-neighbours), a
 /// linear-time stand-in for Euclidean clustering that is fast enough for a 300k-point belt.
-fn large_patches(points: &[Point], plane: [f32; 4], cell_mm: f64, min_points: usize) -> Vec<bool> {
+fn large_patches(points: &[Point], plane: [f32; 4], cell_mm: f64, min: PatchMin) -> Vec<bool> {
     use std::collections::HashMap;
     let n = nalgebra::Vector3::new(
         f64::from(plane[0]),
@@ -264,15 +483,20 @@ fn large_patches(points: &[Point], plane: [f32; 4], cell_mm: f64, min_points: us
         }
     }
     let mut size = vec![0usize; parent.len()];
+    let mut occupied = vec![0usize; parent.len()];
     for (k, &c) in count.iter().enumerate() {
         let r = root(&mut parent, k);
         size[r] += c;
+        occupied[r] += 1;
     }
     cells
         .iter()
         .map(|c| {
             let r = root(&mut parent, id[c]);
-            size[r] >= min_points
+            match min {
+                PatchMin::Points(n) => size[r] >= n,
+                PatchMin::AreaMm2(a) => occupied[r] as f64 * cell_mm * cell_mm >= a,
+            }
         })
         .collect()
 }
@@ -292,12 +516,12 @@ mod tests {
                 }
             }
         }
-        let big = large_patches(&pts, [0.0, 0.0, 1.0, 0.0], 1.5, 50);
+        let big = large_patches(&pts, [0.0, 0.0, 1.0, 0.0], 1.5, PatchMin::Points(50));
         assert!(big[..200].iter().all(|&b| b), "two 100-point patches");
         assert!(big[200..].iter().all(|&b| !b), "9-point patch is small");
         // With a 60-point minimum... still both 100-point patches; with 150, none.
         assert!(
-            large_patches(&pts, [0.0, 0.0, 1.0, 0.0], 1.5, 150)
+            large_patches(&pts, [0.0, 0.0, 1.0, 0.0], 1.5, PatchMin::Points(150))
                 .iter()
                 .all(|&b| !b)
         );
@@ -305,7 +529,7 @@ mod tests {
         for x in 10..14 {
             pts.push([x as f32, 5.0, 0.0]);
         }
-        let big = large_patches(&pts, [0.0, 0.0, 1.0, 0.0], 1.5, 150);
+        let big = large_patches(&pts, [0.0, 0.0, 1.0, 0.0], 1.5, PatchMin::Points(150));
         assert!(big[..200].iter().all(|&b| b));
     }
 }

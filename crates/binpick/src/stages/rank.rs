@@ -32,14 +32,26 @@ pub(crate) fn suppress_duplicates(
     });
     let kp = model_keypoints;
     let d = outlier_distance_mm;
+    // Two placed models whose centroids are farther apart than twice the model's reach plus
+    // the outlier distance share no point within it: such pairs are not compared (same
+    // answer, and the cost no longer grows with the square of the parts in a big scene).
+    let c = Point3::from(binpick_cloud::centroid(kp).unwrap_or([0.0; 3]));
+    let reach = kp
+        .iter()
+        .map(|q| (Point3::new(f64::from(q[0]), f64::from(q[1]), f64::from(q[2])) - c).norm())
+        .fold(0.0, f64::max);
+    let apart = |a: &Detection, b: &Detection| (a.pose * c - b.pose * c).norm() > 2.0 * reach + d;
     let mut kept: Vec<(Detection, Option<NearestIndex>)> = Vec::new();
     for det in detections {
         let placed: Vec<Point> = kp
             .iter()
             .map(|q| binpick_cloud::transform_point(&det.pose, q))
             .collect();
-        let index = NearestIndex::new(&placed).ok();
+        let index = NearestIndex::new("model", &placed).ok();
         let duplicate = kept.iter().any(|(other, other_index)| {
+            if apart(&det, other) {
+                return false;
+            }
             let a = other_index
                 .as_ref()
                 .map_or(100.0, |oi| outlier_percent(oi, kp, &det.pose, d));
@@ -136,6 +148,7 @@ pub(crate) fn rank_by_view(detections: &mut [Detection], cfg: &RankingConfig) {
             continued: 0.0,
             fit: 0.0,
             visible_cells: 0,
+            below_support: 0.0,
         });
         let free = v.covered <= cfg.covered_max;
         let vis_band = if band > 0.0 {
@@ -219,6 +232,7 @@ mod tests {
             },
             height_mm: height,
             rank_reason: String::new(),
+            grasps: Vec::new(),
         }
     }
 

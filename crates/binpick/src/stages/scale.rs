@@ -19,7 +19,7 @@
 //! | sampling step         | max(`sampling_step_diameters` d, `min_sampling_step_resolutions` w) |
 //! | normal radius         | max(`normal_radius_steps` step, `min_normal_radius_resolutions` w) |
 //! | view cell             | `cell_resolutions` w                                        |
-//! | view tolerance        | `tolerance_cells` cell                                      |
+//! | view tolerance        | max(`tolerance_cells` cell, `tolerance_sigmas` noise)       |
 //! | part points           | visible area of one part / w^2 (cluster and support bounds) |
 
 use serde::{Deserialize, Serialize};
@@ -27,7 +27,7 @@ use serde::{Deserialize, Serialize};
 use binpick_cloud::Point;
 use binpick_match::PointIndex;
 
-use crate::error::{Result, input};
+use crate::error::{InputKind, Result, input_as};
 use crate::params::Params;
 pub use crate::result::DerivedScale;
 
@@ -55,7 +55,8 @@ pub fn measure_spacing(points: &[Point]) -> Result<Option<Spacing>> {
     if points.len() <= SPACING_NEIGHBOUR {
         return Ok(None);
     }
-    let index = PointIndex::new("cloud", points).map_err(|e| input("cloud", e.to_string()))?;
+    let index = PointIndex::new("cloud", points)
+        .map_err(|e| input_as("cloud", InputKind::Degenerate, e.to_string()))?;
     let step = (points.len() / SPACING_SAMPLES).max(1);
     let mut gaps: Vec<f64> = Vec::with_capacity(SPACING_SAMPLES);
     for p in points.iter().step_by(step) {
@@ -103,8 +104,9 @@ impl DerivedScale {
             (None, None) => on_ladder(MIN_RESOLUTION_DIAMETERS * d),
         };
         if !(resolution_mm.is_finite() && resolution_mm > 0.0) {
-            return Err(input(
+            return Err(input_as(
                 "scene",
+                InputKind::Degenerate,
                 format!("cannot derive a resolution (got {resolution_mm} mm)"),
             ));
         }
@@ -127,6 +129,7 @@ impl DerivedScale {
             sampling_step_mm,
             normal_radius_mm,
             cell_mm,
+            scan_noise_mm: None,
             tolerance_mm: params.verify.tolerance_cells * cell_mm,
             part_points: part.view_area_mm2 / (resolution_mm * resolution_mm),
         })
@@ -138,9 +141,12 @@ impl DerivedScale {
             (Some(s), Some(g)) => format!("scan spacing {s:.3} mm (gap {g:.3} mm), "),
             _ => String::new(),
         };
+        let noise = self
+            .scan_noise_mm
+            .map_or(String::new(), |n| format!(" (noise {n:.2} mm)"));
         format!(
             "{measured}model diameter {:.1} mm -> resolution {:.3} mm, sampling step {:.2} mm, \
-             normal radius {:.2} mm, view cell {:.2} mm, tolerance {:.2} mm, support distance {:.2} mm",
+             normal radius {:.2} mm, view cell {:.2} mm, tolerance {:.2} mm{noise}, support distance {:.2} mm",
             self.model_diameter_mm,
             self.resolution_mm,
             self.sampling_step_mm,
@@ -149,6 +155,18 @@ impl DerivedScale {
             self.tolerance_mm,
             self.support_distance_mm
         )
+    }
+
+    /// Takes the scan's noise into account: the view tolerance grows to
+    /// `tolerance_sigmas` x the noise when that is wider.
+    pub fn with_noise(mut self, noise_mm: Option<f64>, params: &Params) -> Self {
+        self.scan_noise_mm = noise_mm;
+        if let Some(sigma) = noise_mm {
+            self.tolerance_mm = self
+                .tolerance_mm
+                .max(params.verify.tolerance_sigmas * sigma);
+        }
+        self
     }
 
     /// The key of the model preparation these values need.

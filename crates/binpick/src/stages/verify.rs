@@ -25,6 +25,14 @@ const ICP_POINTS: usize = 800;
 const OUTLIER_RESOLUTIONS: f64 = 4.0;
 /// Orthographic sensors are placed this far along `up` for normal orientation, mm.
 const FAR_MM: f64 = 1e7;
+/// Model points checked against the support planes per pose.
+const SUPPORT_SAMPLE_POINTS: usize = 400;
+/// A model point is behind a support plane when it lies this many view tolerances beyond it
+/// (a resting part touches its support; noise and a slight tilt stay well inside).
+const SUPPORT_TOLERANCES: f64 = 3.0;
+/// A support plane bounds the parts when at most this share of the scene's non-support
+/// points lies behind it (strays and noise).
+const MAX_BEHIND_SHARE: f64 = 0.005;
 
 /// Where the sensor was: the configured one, or for `auto` a camera at the origin when the
 /// scene lies far out along one side of it, else a scanner far above along `up`.
@@ -85,6 +93,9 @@ pub(crate) struct SceneSurface {
     pub support: Vec<bool>,
     /// The points that are not support.
     pub world: Vec<Point>,
+    /// The support planes found in preprocessing, `a x + b y + c z + d = 0` (unit normal,
+    /// mm), in either orientation.
+    pub planes: Vec<[f64; 4]>,
 }
 
 /// Everything verification reads, built once per scene.
@@ -97,6 +108,10 @@ pub(crate) struct Verifier<'a> {
     model: &'a VotingModel,
     scale: &'a DerivedScale,
     cfg: &'a VerifyConfig,
+    /// The support planes that bound the parts, normals towards them (`bounding_planes`).
+    planes: Vec<(Vector3<f64>, f64)>,
+    /// A fixed sample of the model's surface checked against them (model frame).
+    support_sample: Vec<Point3<f64>>,
 }
 
 /// The thesis's validators of a pose, on the visible model surface.
@@ -124,11 +139,17 @@ impl<'a> Verifier<'a> {
             Some(&scene.normals),
         )
         .map_err(matching("view grid"))?;
+        let planes = bounding_planes(&scene.planes, &scene.world, sunk_depth_mm(scale));
         Ok(Self {
+            planes,
+            support_sample: binpick_cloud::strided_points(
+                &model.dense.points,
+                SUPPORT_SAMPLE_POINTS,
+            ),
             grid,
             view,
             world: IndexedCloud::new(&scene.world).map_err(pcl("scene upload"))?,
-            world_index: NearestIndex::new(&scene.world)
+            world_index: NearestIndex::new("scene", &scene.world)
                 .map_err(|e| input("scene", e.to_string()))?,
             model,
             scale,
@@ -189,7 +210,22 @@ impl<'a> Verifier<'a> {
 
     /// The view verdict of `pose`.
     pub(crate) fn score(&self, pose: &Isometry3<f64>) -> ViewScore {
-        self.grid.score(&self.model.dense, pose, &self.view)
+        let mut s = self.grid.score(&self.model.dense, pose, &self.view);
+        if !self.planes.is_empty() {
+            let depth = sunk_depth_mm(self.scale);
+            s.support_checked = self.support_sample.len() as u32;
+            s.below_support = self
+                .support_sample
+                .iter()
+                .filter(|p| {
+                    let q = pose * *p;
+                    self.planes
+                        .iter()
+                        .any(|(n, d)| n.dot(&q.coords) + d < -depth)
+                })
+                .count() as u32;
+        }
+        s
     }
 
     /// The thesis's validators on the visible surface: the Euclidean score and the percent of
@@ -214,6 +250,40 @@ impl<'a> Verifier<'a> {
     }
 }
 
+/// How far behind a support plane a model point counts as sunk, mm.
+fn sunk_depth_mm(scale: &DerivedScale) -> f64 {
+    SUPPORT_TOLERANCES * scale.tolerance_mm
+}
+
+/// The support planes that bound the parts, normals towards them: those with (almost) all
+/// the scene's non-support points `world` on one side, beyond `depth` mm. A plane with parts
+/// on both sides (RANSAC laid across the tops of a layer of parts, say) bounds nothing.
+fn bounding_planes(planes: &[[f64; 4]], world: &[Point], depth: f64) -> Vec<(Vector3<f64>, f64)> {
+    planes
+        .iter()
+        .filter_map(|&[a, b, c, d]| {
+            let n = Vector3::new(a, b, c);
+            let (mut front, mut behind) = (0usize, 0usize);
+            for p in world {
+                let side = n.dot(&Vector3::new(
+                    f64::from(p[0]),
+                    f64::from(p[1]),
+                    f64::from(p[2]),
+                )) + d;
+                front += usize::from(side > depth);
+                behind += usize::from(side < -depth);
+            }
+            let (major, minor, sign) = if front >= behind {
+                (front, behind, 1.0)
+            } else {
+                (behind, front, -1.0)
+            };
+            (major > 0 && minor as f64 <= MAX_BEHIND_SHARE * world.len() as f64)
+                .then_some((n * sign, d * sign))
+        })
+        .collect()
+}
+
 /// A view verdict as reported in a detection.
 pub(crate) fn view_check(s: &ViewScore) -> ViewCheck {
     let share = |n: u32| {
@@ -231,5 +301,6 @@ pub(crate) fn view_check(s: &ViewScore) -> ViewCheck {
         continued: s.continued_ratio(),
         fit: s.mean_fit(),
         visible_cells: s.visible,
+        below_support: s.below_support_ratio(),
     }
 }
