@@ -116,7 +116,7 @@ pub fn voting_summary(v: &binpick::VotingReport) -> String {
         )
     });
     format!(
-        "{}: {} samples, {} votes, {} hypotheses, {} candidates verified, {} accepted; refused: {} too little surface, {} low visibility, {} free space, {} sunk into support, {} no outline, {} poor fit, {} repeats{refused}",
+        "{}: {} samples, {} votes, {} hypotheses, {} candidates verified, {} accepted; refused: {} too little surface, {} low visibility, {} free space, {} sunk into support, {} on support, {} no outline, {} poor fit, {} repeats{refused}",
         v.sensor,
         v.scene_samples,
         v.votes,
@@ -127,6 +127,7 @@ pub fn voting_summary(v: &binpick::VotingReport) -> String {
         v.rejected_low_visibility,
         v.rejected_free_space,
         v.rejected_below_support,
+        v.rejected_on_support,
         v.rejected_no_outline,
         v.rejected_poor_fit,
         v.rejected_explained

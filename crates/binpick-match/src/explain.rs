@@ -27,6 +27,9 @@ pub struct ExplainConfig {
     /// Largest share of the model's surface that may lie behind a support plane (the part
     /// sunk into the belt, floor or a wall). Range 0-1.
     pub max_below_support: f64,
+    /// Largest share of its confirmed cells that the support (belt, floor, wall) may confirm:
+    /// a part is seen by its own surface. Range 0-1.
+    pub max_explained_by_support: f64,
     /// Each free-space cell costs this many explained cells in the competition. Default 2,
     /// range 0-100.
     pub free_space_weight: f64,
@@ -47,6 +50,12 @@ impl ExplainConfig {
         }
         if !unit(self.min_fit) {
             return Err(MatchError::config("min_fit", "expected 0-1"));
+        }
+        if !unit(self.max_explained_by_support) {
+            return Err(MatchError::config(
+                "max_explained_by_support",
+                "expected 0-1",
+            ));
         }
         if !unit(self.max_below_support) {
             return Err(MatchError::config("max_below_support", "expected 0-1"));
@@ -76,6 +85,8 @@ impl ExplainConfig {
             Some(Rejection::FreeSpace)
         } else if s.below_support_ratio() > self.max_below_support {
             Some(Rejection::BelowSupport)
+        } else if s.support_explained_ratio() > self.max_explained_by_support {
+            Some(Rejection::OnSupport)
         } else if s.mean_fit() < self.min_fit {
             Some(Rejection::PoorFit)
         } else if s.continued_ratio() > self.max_continued {
@@ -97,6 +108,8 @@ pub enum Rejection {
     FreeSpace,
     /// More than `max_below_support` of the part lies behind a support plane.
     BelowSupport,
+    /// More than `max_explained_by_support` of its confirmed surface is support.
+    OnSupport,
     /// The scene's surface carries on past more than `max_continued` of its outline.
     NoOutline,
     /// The confirmed surface fits worse than `min_fit`.

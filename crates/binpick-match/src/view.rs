@@ -238,6 +238,9 @@ pub struct ViewScore {
     /// cannot sink into what carries it. Filled by the caller, which knows the planes.
     pub below_support: u32,
     pub support_checked: u32,
+    /// Explained cells whose best-fitting scene surface is background (belt, floor, wall):
+    /// a part laid on the support rather than seen.
+    pub explained_by_support: u32,
 }
 
 impl ViewScore {
@@ -257,6 +260,11 @@ impl ViewScore {
     /// Share of the visible surface contradicted by free space.
     pub fn free_space_ratio(&self) -> f64 {
         ratio(self.free_space, self.visible)
+    }
+
+    /// Share of the explained cells explained by background.
+    pub fn support_explained_ratio(&self) -> f64 {
+        ratio(self.explained_by_support, self.explained)
     }
 
     /// Share of the checked model points that lie behind a support plane.
@@ -494,6 +502,7 @@ impl RangeGrid {
             let t = tol + cell.slack;
             // Best fit among the neighbouring cells (one cell of lateral slack).
             let mut best_fit: Option<f64> = None;
+            let mut best_on_background = false;
             let (mut wrong_normal, mut front, mut behind, mut any) = (false, false, false, false);
             let mut front_is_object = false;
             for dr in -1..=1 {
@@ -516,7 +525,10 @@ impl RangeGrid {
                         if self.normal_agrees(k, &cell.normal) {
                             let weight = if dr == 0 && dc == 0 { 1.0 } else { 0.25 };
                             let fit = weight * (1.0 - (off_plane / tol).powi(2));
-                            best_fit = Some(best_fit.map_or(fit, |b: f64| b.max(fit)));
+                            if best_fit.is_none_or(|b| fit > b) {
+                                best_fit = Some(fit);
+                                best_on_background = self.background[k];
+                            }
                         } else {
                             wrong_normal = true;
                         }
@@ -532,6 +544,7 @@ impl RangeGrid {
             }
             if let Some(fit) = best_fit {
                 s.explained += 1;
+                s.explained_by_support += u32::from(best_on_background);
                 s.fit += fit;
                 if let Some(k) = self.cell_index(c, r) {
                     s.explained_cells.push(k as u32);

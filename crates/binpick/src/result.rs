@@ -645,6 +645,9 @@ pub struct VotingReport {
     /// Refused: it would sink into a support plane (belt, floor, bin wall).
     #[serde(default)]
     pub rejected_below_support: usize,
+    /// Refused: mostly confirmed by the support rather than by a part's surface.
+    #[serde(default)]
+    pub rejected_on_support: usize,
     /// Refused: its outline does not continue in the scan.
     #[serde(default)]
     pub rejected_no_outline: usize,

@@ -642,3 +642,30 @@ fn derived_parameters_scale_with_the_input() {
         }
     }
 }
+
+/// With few hypotheses per round, the first round's strongest poses cover only some parts;
+/// a second round votes over what they leave unexplained and finds the others.
+#[test]
+fn a_second_voting_round_finds_the_parts_the_first_one_left() {
+    let (cloud, truths) = standard_scene();
+    let found = |rounds: u32| {
+        let mut p = Params::default();
+        p.voting.hypotheses = 2;
+        p.voting.rounds = rounds;
+        let r = Recognizer::new(&model(), p)
+            .unwrap()
+            .recognize(&cloud)
+            .unwrap();
+        let matched = match_truth(&truths, &r).iter().flatten().count();
+        (r.detections.len(), matched)
+    };
+    let (one, one_matched) = found(1);
+    let (more, more_matched) = found(4);
+    assert!(one <= 2, "{one} detections from 2 hypotheses");
+    assert!(
+        more_matched > one_matched && more_matched >= 4,
+        "rounds 1: {one_matched} of {}, rounds 4: {more_matched} ({more} detections)",
+        truths.len()
+    );
+    assert_eq!(more, more_matched, "every detection is one of the parts");
+}

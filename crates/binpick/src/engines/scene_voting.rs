@@ -21,7 +21,9 @@ use nalgebra::Isometry3;
 use rayon::prelude::*;
 
 use binpick_cloud::Point;
-use binpick_match::{ExplainConfig, OrientedPoints, Rejection, Sensor, ViewScore, explain_scene};
+use binpick_match::{
+    ExplainConfig, OrientedPoints, PoseCluster, Rejection, Sensor, ViewScore, explain_scene,
+};
 
 use crate::deadline::{Deadline, ms};
 use crate::error::Result;
@@ -34,6 +36,10 @@ use crate::stages::hypotheses::{VotingModel, matching, scene_normals, scene_samp
 use crate::stages::part::Part;
 use crate::stages::rank::height_mm;
 use crate::stages::verify::{SceneSurface, Verifier, resolve_sensor, view_check, viewpoint};
+
+/// A scene sample is explained by a taken part within this many view tolerances of its
+/// surface (later voting rounds skip it).
+const UNEXPLAINED_TOLERANCES: f64 = 2.0;
 
 /// What the engine found in the scene.
 pub(crate) struct VotingFound {
@@ -205,62 +211,51 @@ impl SceneVoting<'_> {
 
         let lap = Instant::now();
         let verifier = Verifier::new(sensor, &surface, self.model, self.scale, &p.verify)?;
-        // Interrupted, the candidates verified so far still compete for the scene (each
-        // taken part was verified against the view); the others are dropped.
-        let verified: Vec<Option<Candidate>> = hypotheses
-            .par_iter()
-            .enumerate()
-            .map(|(i, h)| {
-                let c = self.verify(&verifier, i, h.votes, &h.pose);
-                self.deadline.partial(c)
-            })
-            .collect::<Result<_>>()?;
-        let mut candidates: Vec<Candidate> = verified.into_iter().flatten().collect();
         let accept = self.acceptance(&verifier);
-        if p.verify.near_symmetry_variants && !self.model.near_symmetries.is_empty() {
-            let turns = self.model.near_symmetries.len();
-            let acceptable: Vec<usize> = (0..candidates.len())
-                .filter(|&k| accept.rejection(&candidates[k].score).is_none())
-                .collect();
-            let turned: Vec<(usize, Isometry3<f64>)> = acceptable
+        let mut candidates = self.candidates(&verifier, &accept, &hypotheses, 0)?;
+        let mut explanation = explain_scene(
+            &candidates
                 .iter()
-                .flat_map(|&k| {
-                    let c = &candidates[k];
-                    self.model
-                        .near_symmetries
-                        .iter()
-                        .map(move |s| (k, c.pose * s))
-                })
-                .collect();
-            let variants: Vec<Option<Candidate>> = turned
-                .par_iter()
-                .map(|&(k, ref pose)| {
-                    let c = &candidates[k];
-                    self.deadline
-                        .partial(self.verify(&verifier, c.hypothesis, c.votes, pose))
-                })
-                .collect::<Result<_>>()?;
-            // Interrupted, a candidate and its turns compete only when all of them were
-            // judged: a turn left alone would win without its rival (a half-turned twin
-            // taken because the right pose was dropped). Incomplete families are dropped.
-            let mut unjudged = Vec::new();
-            let mut families = variants.into_iter();
-            for &k in &acceptable {
-                let family: Vec<Option<Candidate>> = families.by_ref().take(turns).collect();
-                if family.iter().all(Option::is_some) {
-                    candidates.extend(family.into_iter().flatten());
-                } else {
-                    unjudged.push(k);
-                }
+                .map(|c| c.score.clone())
+                .collect::<Vec<_>>(),
+            verifier.grid.cells(),
+            &accept,
+        )
+        .map_err(matching("scene explanation"))?;
+        // Further rounds vote over what the taken parts leave unexplained.
+        let mut offset = hypotheses.len();
+        for _ in 1..p.voting.rounds {
+            if self.deadline.check("voting").is_err() {
+                break;
             }
-            for k in unjudged.into_iter().rev() {
-                candidates.remove(k);
+            let rest = self.unexplained(&samples, &candidates, &explanation.taken)?;
+            let (votes, more) = vote(self.model, self.part, &rest, self.scale, &p.voting)?;
+            report.votes += votes;
+            report.hypotheses += more.len();
+            if more.is_empty() {
+                break;
             }
+            let (seen, on_support): (Vec<Candidate>, Vec<Candidate>) = self
+                .candidates(&verifier, &accept, &more, offset)?
+                .into_iter()
+                .partition(|c| {
+                    c.score.support_explained_ratio() <= p.verify.max_explained_by_support
+                });
+            report.rejected_on_support += on_support.len();
+            candidates.extend(seen);
+            offset += more.len();
+            explanation = explain_scene(
+                &candidates
+                    .iter()
+                    .map(|c| c.score.clone())
+                    .collect::<Vec<_>>(),
+                verifier.grid.cells(),
+                &accept,
+            )
+            .map_err(matching("scene explanation"))?;
         }
         report.candidates = candidates.len();
         let scores: Vec<ViewScore> = candidates.iter().map(|c| c.score.clone()).collect();
-        let explanation = explain_scene(&scores, verifier.grid.cells(), &accept)
-            .map_err(matching("scene explanation"))?;
         self.tally(&explanation.rejected, &scores, &mut report);
         report.accepted = explanation.taken.len();
         if p.verify.report_candidates {
@@ -288,6 +283,111 @@ impl SceneVoting<'_> {
             report,
             voting_ms,
             verify_ms: ms(lap.elapsed()),
+        })
+    }
+
+    /// The hypotheses refined and judged, with the near-symmetric turns of the acceptable
+    /// ones; `offset` numbers them after the earlier rounds'.
+    fn candidates(
+        &self,
+        verifier: &Verifier,
+        accept: &ExplainConfig,
+        hypotheses: &[PoseCluster],
+        offset: usize,
+    ) -> Result<Vec<Candidate>> {
+        // Interrupted, the candidates verified so far still compete for the scene (each
+        // taken part was verified against the view); the others are dropped.
+        let verified: Vec<Option<Candidate>> = hypotheses
+            .par_iter()
+            .enumerate()
+            .map(|(i, h)| {
+                let c = self.verify(verifier, offset + i, h.votes, &h.pose);
+                self.deadline.partial(c)
+            })
+            .collect::<Result<_>>()?;
+        let mut candidates: Vec<Candidate> = verified.into_iter().flatten().collect();
+        if !self.params.verify.near_symmetry_variants || self.model.near_symmetries.is_empty() {
+            return Ok(candidates);
+        }
+        let turns = self.model.near_symmetries.len();
+        let acceptable: Vec<usize> = (0..candidates.len())
+            .filter(|&k| accept.rejection(&candidates[k].score).is_none())
+            .collect();
+        let turned: Vec<(usize, Isometry3<f64>)> = acceptable
+            .iter()
+            .flat_map(|&k| {
+                let c = &candidates[k];
+                self.model
+                    .near_symmetries
+                    .iter()
+                    .map(move |s| (k, c.pose * s))
+            })
+            .collect();
+        let variants: Vec<Option<Candidate>> = turned
+            .par_iter()
+            .map(|&(k, ref pose)| {
+                let c = &candidates[k];
+                self.deadline
+                    .partial(self.verify(verifier, c.hypothesis, c.votes, pose))
+            })
+            .collect::<Result<_>>()?;
+        // Interrupted, a candidate and its turns compete only when all of them were
+        // judged: a turn left alone would win without its rival (a half-turned twin
+        // taken because the right pose was dropped). Incomplete families are dropped.
+        let mut unjudged = Vec::new();
+        let mut families = variants.into_iter();
+        for &k in &acceptable {
+            let family: Vec<Option<Candidate>> = families.by_ref().take(turns).collect();
+            if family.iter().all(Option::is_some) {
+                candidates.extend(family.into_iter().flatten());
+            } else {
+                unjudged.push(k);
+            }
+        }
+        for k in unjudged.into_iter().rev() {
+            candidates.remove(k);
+        }
+        Ok(candidates)
+    }
+
+    /// The scene samples farther than two view tolerances from every taken part's surface.
+    fn unexplained(
+        &self,
+        samples: &OrientedPoints,
+        candidates: &[Candidate],
+        taken: &[usize],
+    ) -> Result<OrientedPoints> {
+        let placed: Vec<binpick_match::P3> = taken
+            .iter()
+            .flat_map(|&k| {
+                let pose = candidates[k].pose;
+                self.model.dense.points.iter().map(move |p| {
+                    let q = pose
+                        * nalgebra::Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+                    [q.x as f32, q.y as f32, q.z as f32]
+                })
+            })
+            .collect();
+        if placed.is_empty() {
+            return Ok(samples.clone());
+        }
+        let index = binpick_match::PointIndex::new("taken parts", &placed)
+            .map_err(matching("taken parts"))?;
+        let far = (UNEXPLAINED_TOLERANCES * self.scale.tolerance_mm).powi(2) as f32; // mm^2
+        let keep: Vec<bool> = samples
+            .points
+            .par_iter()
+            .map(|q| index.nearest(q).1 > far)
+            .collect();
+        let pick = |v: &[binpick_match::P3]| {
+            v.iter()
+                .zip(&keep)
+                .filter_map(|(x, k)| k.then_some(*x))
+                .collect()
+        };
+        Ok(OrientedPoints {
+            points: pick(&samples.points),
+            normals: pick(&samples.normals),
         })
     }
 
@@ -341,6 +441,8 @@ impl SceneVoting<'_> {
             min_visibility: v.min_visibility,
             max_free_space: v.max_free_space,
             max_below_support: v.max_below_support,
+            // Applied to later rounds only (`detect`).
+            max_explained_by_support: 1.0,
             max_continued: v.max_continued,
             min_fit: v.min_fit,
             min_explained_cells: (v.min_explained_share * verifier.typical_cells())
@@ -362,6 +464,7 @@ impl SceneVoting<'_> {
                 Rejection::LowVisibility => r.rejected_low_visibility += 1,
                 Rejection::FreeSpace => r.rejected_free_space += 1,
                 Rejection::BelowSupport => r.rejected_below_support += 1,
+                Rejection::OnSupport => r.rejected_on_support += 1,
                 Rejection::NoOutline => r.rejected_no_outline += 1,
                 Rejection::PoorFit => r.rejected_poor_fit += 1,
                 Rejection::Explained => r.rejected_explained += 1,
@@ -389,6 +492,9 @@ impl SceneVoting<'_> {
                     Rejection::FreeSpace => "the sensor saw through it (max_free_space)",
                     Rejection::BelowSupport => {
                         "it sinks into the belt, floor or a wall (max_below_support)"
+                    }
+                    Rejection::OnSupport => {
+                        "the belt, floor or a wall confirms most of it (max_explained_by_support)"
                     }
                     Rejection::NoOutline => {
                         "the scene's surface carries on past its outline (max_continued)"

@@ -416,8 +416,11 @@ stage_config! {
         cluster_translation_diameters: f64 = 0.1, positive(1.0, "x diameter");
         /// ... and rotate it less than this (up to symmetry) are one hypothesis, deg.
         cluster_rotation_deg: f64 = 24.0, within(1.0, 180.0, "deg");
-        /// Strongest pose clusters verified, at most.
+        /// Strongest pose clusters verified, at most (per round).
         hypotheses: usize = 60, count(1, 10_000, "");
+        /// Voting rounds: each next round votes again over the scene samples that no part
+        /// taken so far explains, so parts outvoted by their neighbours get hypotheses too.
+        rounds: u32 = 2, count(1, 5, "");
     }
 }
 
@@ -446,6 +449,12 @@ stage_config! {
         /// At most this share of the part may lie behind a support plane (sunk into the
         /// belt, floor or a bin wall by more than three view tolerances).
         max_below_support: f64 = 0.05, within(0.0, 1.0, "");
+        /// Candidates of later voting rounds (voted from what the taken parts leave
+        /// unexplained, bin rims included): at most this share of their confirmed surface
+        /// may be belt, floor or wall (a part laid on the support, not seen). Not applied in
+        /// the first round: parts' surfaces taken for support (a plane across the tops of a
+        /// layer of shafts) would refuse true parts.
+        max_explained_by_support: f64 = 0.5, within(0.0, 1.0, "");
         /// The scene's surface may carry on past at most this share of the part's outline
         /// (a real part's outline is a depth edge of the scene).
         max_continued: f64 = 1.0, within(0.0, 1.0, "");
