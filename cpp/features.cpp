@@ -22,20 +22,35 @@ Eigen::Vector3f read_viewpoint(rust::Slice<const float> viewpoint) {
 
 // pcl::NormalEstimationOMP over `cloud`, searching `tree` (built on `cloud`), flipped towards
 // the sensor viewpoint so the model and the scene orient normals the same way.
+// With `at`, only at those points (indices into `cloud`), the whole cloud still searched.
 Normals::Ptr normals_for(const PointCloudXYZ::Ptr& cloud,
                          const pcl::search::Search<pcl::PointXYZ>::Ptr& tree, float radius,
-                         const Eigen::Vector3f& vp, std::uint32_t threads) {
+                         const Eigen::Vector3f& vp, std::uint32_t threads,
+                         const pcl::IndicesPtr& at = nullptr) {
   pcl::NormalEstimationOMP<pcl::PointXYZ, pcl::Normal> ne(threads);
   ne.setInputCloud(cloud);
+  if (at) ne.setIndices(at);
   ne.setSearchMethod(tree);
   ne.setRadiusSearch(radius);
   ne.setViewPoint(vp.x(), vp.y(), vp.z());
   Normals::Ptr normals(new Normals);
   ne.compute(*normals);
-  if (normals->size() != cloud->size()) {
+  if (normals->size() != (at ? at->size() : cloud->size())) {
     throw std::runtime_error("NormalEstimationOMP failed (see PCL's message above)");
   }
   return normals;
+}
+
+rust::Vec<float> flatten_normals(const Normals& normals) {
+  rust::Vec<float> out;
+  out.reserve(normals.size() * 4);
+  for (const auto& n : normals.points) {
+    out.push_back(n.normal_x);
+    out.push_back(n.normal_y);
+    out.push_back(n.normal_z);
+    out.push_back(n.curvature);
+  }
+  return out;
 }
 
 }  // namespace
@@ -45,16 +60,18 @@ rust::Vec<float> estimate_normals(rust::Slice<const float> xyz, float radius,
   check_positive(radius, "normal radius");
   const auto vp = read_viewpoint(viewpoint);
   const auto cloud = to_cloud(xyz, "estimate_normals");
-  const auto normals = normals_for(cloud, make_tree(cloud), radius, vp, threads);
-  rust::Vec<float> out;
-  out.reserve(normals->size() * 4);
-  for (const auto& n : normals->points) {
-    out.push_back(n.normal_x);
-    out.push_back(n.normal_y);
-    out.push_back(n.normal_z);
-    out.push_back(n.curvature);
-  }
-  return out;
+  return flatten_normals(*normals_for(cloud, make_tree(cloud), radius, vp, threads));
+}
+
+rust::Vec<float> estimate_normals_at(rust::Slice<const float> xyz,
+                                     rust::Slice<const std::uint32_t> at, float radius,
+                                     rust::Slice<const float> viewpoint, std::uint32_t threads) {
+  check_positive(radius, "normal radius");
+  const auto vp = read_viewpoint(viewpoint);
+  const auto cloud = to_cloud(xyz, "estimate_normals_at");
+  auto indices = std::make_shared<pcl::Indices>(to_indices(at, cloud->size(), "normal points"));
+  if (indices->empty()) return {};
+  return flatten_normals(*normals_for(cloud, make_tree(cloud), radius, vp, threads, indices));
 }
 
 // FPFH (pcl::FPFHEstimationOMP) at `keypoints` (indices into `surface`), with the whole

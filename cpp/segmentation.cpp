@@ -150,7 +150,7 @@ class ShardedPlaneModel : public pcl::SampleConsensusModelPlane<pcl::PointXYZ> {
 };
 
 // Below this many points a plane fit is not worth splitting over threads.
-constexpr std::size_t kMinPointsPerShard = 20000;
+constexpr std::size_t kMinPointsPerShard = 8000;
 
 }  // namespace
 

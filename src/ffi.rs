@@ -249,6 +249,13 @@ pub(crate) mod bridge {
             viewpoint: &[f32],
             threads: u32,
         ) -> Result<Vec<f32>>;
+        fn estimate_normals_at(
+            xyz: &[f32],
+            at: &[u32],
+            radius: f32,
+            viewpoint: &[f32],
+            threads: u32,
+        ) -> Result<Vec<f32>>;
         fn cloud_fpfh(
             surface: &Cloud,
             keypoints: &[u32],

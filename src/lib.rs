@@ -9,6 +9,7 @@
 //! | [`uniform_sampling`]              | `pcl::UniformSampling` (thesis 3.2.3)                      |
 //! | [`voxel_grid`]                    | `pcl::VoxelGrid`                                           |
 //! | [`estimate_normals`]              | `pcl::NormalEstimationOMP`                                 |
+//! | [`estimate_normals_at`]           | `pcl::NormalEstimationOMP` with `setIndices`               |
 //! | [`IndexedCloud::fpfh`]            | `pcl::NormalEstimationOMP` + `pcl::FPFHEstimationOMP` (3.3.2) |
 //! | [`IndexedCloud::euclidean_clusters`] | `pcl::EuclideanClusterExtraction` (3.4.1.3)            |
 //! | [`segment_plane`]                 | `pcl::SACSegmentation` (plane, RANSAC)                     |
@@ -183,12 +184,33 @@ pub fn estimate_normals(
     init();
     let v = bridge::estimate_normals(flat(points), radius, &viewpoint, threads)
         .map_err(pcl_err("NormalEstimationOMP"))?;
-    Ok(v.chunks_exact(4)
+    Ok(unflatten_normals(&v))
+}
+
+/// Normals of the points `at` (indices into `points`) from their neighbours among all of
+/// `points` within `radius`, flipped towards `viewpoint`: the same values
+/// [`estimate_normals`] gives at those points, without computing the others. An index out
+/// of range is an error.
+pub fn estimate_normals_at(
+    points: &[Point],
+    at: &[u32],
+    radius: f32,
+    viewpoint: Point,
+    threads: u32,
+) -> Result<Vec<Normal>> {
+    init();
+    let v = bridge::estimate_normals_at(flat(points), at, radius, &viewpoint, threads)
+        .map_err(pcl_err("NormalEstimationOMP"))?;
+    Ok(unflatten_normals(&v))
+}
+
+fn unflatten_normals(v: &[f32]) -> Vec<Normal> {
+    v.chunks_exact(4)
         .map(|c| Normal {
             normal: [c[0], c[1], c[2]],
             curvature: c[3],
         })
-        .collect())
+        .collect()
 }
 
 /// A fitted plane `a x + b y + c z + d = 0` (unit normal) and the indices of its inliers.

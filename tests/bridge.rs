@@ -4,8 +4,8 @@
 
 use binpick_pcl::{
     Correspondence, Error, FpfhParams, IcpParams, IndexedCloud, Mat4, Point, estimate_normals,
-    estimate_svd, match_features, reject_sample_consensus, reject_sample_consensus_sweep,
-    segment_plane, uniform_sampling, voxel_grid,
+    estimate_normals_at, estimate_svd, match_features, reject_sample_consensus,
+    reject_sample_consensus_sweep, segment_plane, uniform_sampling, voxel_grid,
 };
 use nalgebra::{Isometry3, Matrix4, Point3, Translation3, UnitQuaternion, Vector3};
 
@@ -551,6 +551,35 @@ fn normals_follow_the_viewpoint() {
     let down = estimate_normals(&pts, 3.0, [10.0, 10.0, -100.0], 2).unwrap();
     assert!(up.iter().all(|n| n.normal[2] > 0.999));
     assert!(down.iter().all(|n| n.normal[2] < -0.999));
+}
+
+#[test]
+fn normals_at_some_points_are_the_normals_of_all_at_those_points() {
+    let shape = bracket();
+    let all = estimate_normals(&shape, 3.0, [30.0, 20.0, 500.0], 2).unwrap();
+    let at: Vec<u32> = (0..shape.len() as u32).rev().step_by(7).collect();
+    for threads in [1, 2] {
+        let some = estimate_normals_at(&shape, &at, 3.0, [30.0, 20.0, 500.0], threads).unwrap();
+        assert_eq!(some.len(), at.len());
+        for (&i, n) in at.iter().zip(&some) {
+            let want = &all[i as usize];
+            assert_eq!(
+                n.normal.map(f32::to_bits),
+                want.normal.map(f32::to_bits),
+                "point {i}"
+            );
+            assert_eq!(n.curvature.to_bits(), want.curvature.to_bits(), "point {i}");
+        }
+    }
+    assert!(
+        estimate_normals_at(&shape, &[], 3.0, [0.0, 0.0, 1.0], 1)
+            .unwrap()
+            .is_empty()
+    );
+    let err = estimate_normals_at(&shape, &[shape.len() as u32], 3.0, [0.0, 0.0, 1.0], 1)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("out of range"), "{err}");
 }
 
 #[test]

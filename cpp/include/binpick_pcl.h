@@ -58,6 +58,9 @@ rust::Vec<float> voxel_grid(rust::Slice<const float> xyz, float leaf);
 // --- features.cpp (pcl_features) ---------------------------------------------------------
 rust::Vec<float> estimate_normals(rust::Slice<const float> xyz, float radius,
                                   rust::Slice<const float> viewpoint, std::uint32_t threads);
+rust::Vec<float> estimate_normals_at(rust::Slice<const float> xyz,
+                                     rust::Slice<const std::uint32_t> at, float radius,
+                                     rust::Slice<const float> viewpoint, std::uint32_t threads);
 Features cloud_fpfh(const Cloud& surface, rust::Slice<const std::uint32_t> keypoints,
                     float feature_radius, float normal_radius, rust::Slice<const float> viewpoint,
                     std::uint32_t threads);

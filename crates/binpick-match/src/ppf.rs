@@ -333,8 +333,14 @@ impl PpfModel {
         let votes: Vec<Vec<Vote>> = references
             .par_iter()
             .map_init(
-                || (vec![0u32; n_model * n_alpha], Vec::<u32>::new(), Vec::new()),
+                // `touched[..n]` lists the slots voted for, in first-vote order; written
+                // without a branch (a slot is appended always, kept only when new).
+                || {
+                    let slots = n_model * n_alpha;
+                    (vec![0u32; slots], vec![0u32; slots + 1], Vec::new())
+                },
                 |(acc, touched, neighbours), &r| {
+                    let mut n_touched = 0usize;
                     let (ps, ns) = (&scene.points[r], &scene.normals[r]);
                     let Some(frame) = Frame::new(ps, ns) else {
                         return Vec::new();
@@ -364,17 +370,16 @@ impl PpfModel {
                             let a = ((alpha / alpha_step) as usize).min(n_alpha - 1);
                             let slot = e.point as usize * n_alpha + a;
                             let count = &mut acc[slot];
-                            if *count == 0 {
-                                touched.push(slot as u32);
-                            }
+                            touched[n_touched] = slot as u32;
+                            n_touched += usize::from(*count == 0);
                             *count += 1;
                         }
                     }
+                    let touched = &touched[..n_touched];
                     let peaks = self.peaks(acc, touched, config, n_alpha);
-                    for &s in touched.iter() {
+                    for &s in touched {
                         acc[s as usize] = 0;
                     }
-                    touched.clear();
                     peaks
                         .into_iter()
                         .map(|(slot, votes)| {

@@ -460,7 +460,7 @@ impl Recognizer {
             None => (Vec::new(), None),
         };
         let ranking = tracing::info_span!("ranking").entered();
-        rank_by_view(&mut detections, &p.ranking);
+        rank_by_view(&mut detections, &p.ranking, p.verify.free_space_weight);
         let tolerance = scale.map_or(p.validation.outlier_distance_mm, |s| s.tolerance_mm);
         self.check_grasps(&mut detections, &points, p, tolerance)?;
         drop(ranking);

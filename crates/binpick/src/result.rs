@@ -134,6 +134,24 @@ pub struct ViewCheck {
     /// floor or a bin wall); 0 without support planes.
     #[serde(default)]
     pub below_support: f64,
+    /// Share of the confirmed surface whose scene surface is belt, floor or wall rather than
+    /// a part: evidence the support gives whether or not the part is there.
+    #[serde(default)]
+    pub on_support: f64,
+}
+
+impl ViewCheck {
+    /// Share of the visible surface confirmed by scene surface that is not support.
+    pub fn own_visibility(&self) -> f64 {
+        self.visibility * (1.0 - self.on_support)
+    }
+
+    /// What the pick order compares: [`own_visibility`](Self::own_visibility) less
+    /// `free_space_weight` times the share the sensor saw through (the scene explanation's
+    /// weighing of evidence against contradiction), at least 0.
+    pub fn pick_confidence(&self, free_space_weight: f64) -> f64 {
+        (self.own_visibility() - free_space_weight * self.free_space).max(0.0)
+    }
 }
 
 impl Detection {

@@ -35,7 +35,9 @@ use crate::result::{
 use crate::stages::hypotheses::{VotingModel, matching, scene_normals, scene_samples, vote};
 use crate::stages::part::Part;
 use crate::stages::rank::height_mm;
-use crate::stages::verify::{SceneSurface, Verifier, resolve_sensor, view_check, viewpoint};
+use crate::stages::verify::{
+    SceneSurface, Verifier, bounding_side, resolve_sensor, sunk_depth_mm, view_check, viewpoint,
+};
 
 /// A scene sample is explained by a taken part within this many view tolerances of its
 /// surface (later voting rounds skip it).
@@ -86,17 +88,25 @@ impl SceneVoting<'_> {
     ) -> Result<(Sensor, SceneSurface)> {
         let p = self.params;
         let sensor = resolve_sensor(&p.verify.sensor, p.ranking.up, points)?;
-        let normals = scene_normals(
-            points,
-            self.scale,
-            viewpoint(&sensor, points),
-            self.threads as u32,
-        )?;
-        let world = points
+        let world: Vec<Point> = points
             .iter()
             .zip(support)
             .filter_map(|(q, s)| (!s).then_some(*q))
             .collect();
+        let depth = sunk_depth_mm(self.scale);
+        let planes: Vec<([f64; 4], bool)> = self
+            .support_planes
+            .iter()
+            .map(|c| (*c, bounding_side(c, &world, depth).is_some()))
+            .collect();
+        let normals = scene_normals(
+            points,
+            support,
+            &planes,
+            self.scale,
+            viewpoint(&sensor, points),
+            self.threads as u32,
+        )?;
         let surface = SceneSurface {
             points: points.to_vec(),
             normals,

@@ -288,8 +288,9 @@ stage_config! {
         /// Scene-voting engine: a part with more than this share of its visible surface
         /// covered by something other than the belt or bin is not free to pick.
         covered_max: f64 = 0.03, within(0.0, 1.0, "");
-        /// Scene-voting engine: estimated visible fractions in the same band of this width
-        /// count as equal and the higher part is picked first.
+        /// Scene-voting engine: pick confidences (the visible share confirmed by surface
+        /// other than the support, less `free_space_weight` times the share seen through) in
+        /// the same band of this width count as equal and the higher part is picked first.
         visibility_band: f64 = 0.1, within(0.0, 1.0, "");
         /// Grasps (declared in the model's sidecar): a detection, or the unexplained scan,
         /// blocks a grasp's approach corridor when at least this many of its points lie in it

@@ -115,22 +115,58 @@ pub(crate) fn subsample(points: &OrientedPoints, leaf: f64) -> Result<OrientedPo
     })
 }
 
-/// Normals of `points` (PCL `NormalEstimationOMP` at the derived radius, oriented towards
-/// `viewpoint`; NaN where undefined).
+/// Normals of `points`, oriented towards `viewpoint` (NaN where undefined): PCL's
+/// `NormalEstimationOMP` at the derived radius, searching all of them, except at support
+/// points (`support[i]`) whose nearest support plane in `planes` (`a x + b y + c z + d = 0`,
+/// unit normal; with `true` where the plane bounds the parts) bounds the parts: those take
+/// the plane's normal. A belt is most of its scan and its plane is known, so estimating its
+/// normals would cost most of this stage for nothing; a plane that does not bound the parts
+/// may have been laid across their tops, where the surface is not the plane.
 pub(crate) fn scene_normals(
     points: &[Point],
+    support: &[bool],
+    planes: &[([f64; 4], bool)],
     scale: &DerivedScale,
     viewpoint: [f64; 3],
     threads: u32,
 ) -> Result<Vec<[f32; 3]>> {
-    let normals = binpick_pcl::estimate_normals(
+    let vp = nalgebra::Vector3::from(viewpoint);
+    let on_plane = |p: &Point| -> Option<[f32; 3]> {
+        let q = nalgebra::Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+        let distance = |c: &[f64; 4]| (c[0] * q.x + c[1] * q.y + c[2] * q.z + c[3]).abs();
+        let (c, bounds) = planes
+            .iter()
+            .min_by(|a, b| distance(&a.0).total_cmp(&distance(&b.0)))?;
+        bounds.then(|| {
+            let n = nalgebra::Vector3::new(c[0], c[1], c[2]);
+            // As PCL flips: towards the viewpoint.
+            let n = if n.dot(&(vp - q)) < 0.0 { -n } else { n };
+            [n.x as f32, n.y as f32, n.z as f32]
+        })
+    };
+    let mut normals: Vec<Option<[f32; 3]>> = points
+        .iter()
+        .zip(support)
+        .map(|(p, &s)| if s { on_plane(p) } else { None })
+        .collect();
+    let estimate: Vec<u32> = (0..points.len() as u32)
+        .filter(|&i| normals[i as usize].is_none())
+        .collect();
+    let estimated = binpick_pcl::estimate_normals_at(
         points,
+        &estimate,
         scale.normal_radius_mm as f32,
         viewpoint.map(|c| c as f32),
         threads,
     )
     .map_err(pcl("scene normals"))?;
-    Ok(normals.iter().map(|n| n.normal).collect())
+    for (&i, n) in estimate.iter().zip(&estimated) {
+        normals[i as usize] = Some(n.normal);
+    }
+    Ok(normals
+        .into_iter()
+        .map(|n| n.unwrap_or([f32::NAN; 3]))
+        .collect())
 }
 
 /// The scene's samples at the sampling step (the `world` points with their normals);
@@ -175,4 +211,75 @@ pub(crate) fn vote(
     .map_err(matching("pose clustering"))?;
     clusters.truncate(cfg.hypotheses);
     Ok((votes.len(), clusters))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::params::Params;
+    use crate::stages::scale::PartSize;
+
+    /// A tilted belt (z = 0.1 x) with a box standing on it, scanned from above.
+    fn belt_with_box() -> (Vec<Point>, Vec<bool>, [f64; 4]) {
+        let tilt = 0.1f64;
+        let mut points = Vec::new();
+        let mut support = Vec::new();
+        for i in 0..60 {
+            for j in 0..60 {
+                let (x, y) = (i as f32, j as f32);
+                points.push([x, y, tilt as f32 * x]);
+                support.push(true);
+                // The box's top, 10 mm above the belt.
+                if (20..40).contains(&i) && (20..40).contains(&j) {
+                    points.push([x + 0.5, y + 0.5, tilt as f32 * (x + 0.5) + 10.0]);
+                    support.push(false);
+                }
+            }
+        }
+        let norm = (1.0 + tilt * tilt).sqrt();
+        (points, support, [-tilt / norm, 0.0, 1.0 / norm, 0.0])
+    }
+
+    #[test]
+    fn support_of_a_bounding_plane_takes_its_normal_and_other_points_are_estimated() {
+        let (points, support, plane) = belt_with_box();
+        let part = PartSize {
+            diameter_mm: 40.0,
+            view_area_mm2: 400.0,
+        };
+        let scale = DerivedScale::derive(&part, None, &Params::default()).unwrap();
+        let above = [30.0, 30.0, 1e6];
+        let both = scene_normals(&points, &support, &[(plane, true)], &scale, above, 2).unwrap();
+        let flipped = plane.map(|c| -c);
+        let other = scene_normals(&points, &support, &[(flipped, true)], &scale, above, 1).unwrap();
+        let estimated = binpick_pcl::estimate_normals(
+            &points,
+            scale.normal_radius_mm as f32,
+            [30.0, 30.0, 1e6],
+            1,
+        )
+        .unwrap();
+        let up = plane.map(|c| c as f32);
+        for (i, s) in support.iter().enumerate() {
+            if *s {
+                // The plane's normal, turned towards the sensor whichever way it was given.
+                for n in [both[i], other[i]] {
+                    for k in 0..3 {
+                        assert!((n[k] - up[k]).abs() < 1e-6, "point {i}: {n:?}");
+                    }
+                }
+            } else {
+                // PCL's own estimate, bit for bit, searching the belt too.
+                assert_eq!(
+                    both[i].map(f32::to_bits),
+                    estimated[i].normal.map(f32::to_bits)
+                );
+            }
+        }
+        // A plane that does not bound the parts leaves its points to PCL.
+        let kept = scene_normals(&points, &support, &[(plane, false)], &scale, above, 2).unwrap();
+        for (k, e) in kept.iter().zip(&estimated) {
+            assert_eq!(k.map(f32::to_bits), e.normal.map(f32::to_bits));
+        }
+    }
 }

@@ -252,7 +252,7 @@ impl<'a> Verifier<'a> {
 }
 
 /// How far behind a support plane a model point counts as sunk, mm.
-fn sunk_depth_mm(scale: &DerivedScale) -> f64 {
+pub(crate) fn sunk_depth_mm(scale: &DerivedScale) -> f64 {
     SUPPORT_TOLERANCES * scale.tolerance_mm
 }
 
@@ -264,26 +264,32 @@ fn bounding_planes(planes: &[[f64; 4]], world: &[Point], depth: f64) -> Vec<(Vec
     planes
         .iter()
         .filter_map(|&[a, b, c, d]| {
-            let n = Vector3::new(a, b, c);
-            let (mut front, mut behind) = (0usize, 0usize);
-            for p in world {
-                let side = n.dot(&Vector3::new(
-                    f64::from(p[0]),
-                    f64::from(p[1]),
-                    f64::from(p[2]),
-                )) + d;
-                front += usize::from(side > depth);
-                behind += usize::from(side < -depth);
-            }
-            let (major, minor, sign) = if front >= behind {
-                (front, behind, 1.0)
-            } else {
-                (behind, front, -1.0)
-            };
-            (major > 0 && minor as f64 <= MAX_BEHIND_RATIO * major as f64)
-                .then_some((n * sign, d * sign))
+            let sign = bounding_side(&[a, b, c, d], world, depth)?;
+            Some((Vector3::new(a, b, c) * sign, d * sign))
         })
         .collect()
+}
+
+/// Whether `plane` bounds the parts (see [`bounding_planes`]): the sign that turns its
+/// normal towards them, or None.
+pub(crate) fn bounding_side(plane: &[f64; 4], world: &[Point], depth: f64) -> Option<f64> {
+    let n = Vector3::new(plane[0], plane[1], plane[2]);
+    let (mut front, mut behind) = (0usize, 0usize);
+    for p in world {
+        let side = n.dot(&Vector3::new(
+            f64::from(p[0]),
+            f64::from(p[1]),
+            f64::from(p[2]),
+        )) + plane[3];
+        front += usize::from(side > depth);
+        behind += usize::from(side < -depth);
+    }
+    let (major, minor, sign) = if front >= behind {
+        (front, behind, 1.0)
+    } else {
+        (behind, front, -1.0)
+    };
+    (major > 0 && minor as f64 <= MAX_BEHIND_RATIO * major as f64).then_some(sign)
 }
 
 /// A view verdict as reported in a detection.
@@ -304,5 +310,6 @@ pub(crate) fn view_check(s: &ViewScore) -> ViewCheck {
         fit: s.mean_fit(),
         visible_cells: s.visible,
         below_support: s.below_support_ratio(),
+        on_support: s.support_explained_ratio(),
     }
 }
