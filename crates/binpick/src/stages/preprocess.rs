@@ -431,7 +431,6 @@ enum PatchMin {
 /// Connectivity is judged on a 2-D grid in the plane (cells of `cell_mm`, 8-neighbours), a
 /// linear-time stand-in for Euclidean clustering that is fast enough for a 300k-point belt.
 fn large_patches(points: &[Point], plane: [f32; 4], cell_mm: f64, min: PatchMin) -> Vec<bool> {
-    use std::collections::HashMap;
     let n = nalgebra::Vector3::new(
         f64::from(plane[0]),
         f64::from(plane[1]),
@@ -453,7 +452,7 @@ fn large_patches(points: &[Point], plane: [f32; 4], cell_mm: f64, min: PatchMin)
         )
     };
     let cells: Vec<(i64, i64)> = points.iter().map(cell_of).collect();
-    let mut id: HashMap<(i64, i64), usize> = HashMap::new();
+    let mut id: HashMap<(i64, i64), usize, BuildHasherDefault<CellHasher>> = HashMap::default();
     let mut count: Vec<usize> = Vec::new();
     for c in &cells {
         let next = id.len();
