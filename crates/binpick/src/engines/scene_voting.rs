@@ -36,7 +36,7 @@ use crate::stages::hypotheses::{VotingModel, matching, scene_normals, scene_samp
 use crate::stages::part::Part;
 use crate::stages::rank::height_mm;
 use crate::stages::verify::{
-    SceneSurface, Verifier, bounding_side, resolve_sensor, sunk_depth_mm, view_check, viewpoint,
+    SceneSurface, Verifier, bounding_planes, resolve_sensor, sunk_depth_mm, view_check, viewpoint,
 };
 
 /// A scene sample is explained by a taken part within this many view tolerances of its
@@ -93,11 +93,12 @@ impl SceneVoting<'_> {
             .zip(support)
             .filter_map(|(q, s)| (!s).then_some(*q))
             .collect();
-        let depth = sunk_depth_mm(self.scale);
+        let bounding = bounding_planes(self.support_planes, &world, sunk_depth_mm(self.scale));
         let planes: Vec<([f64; 4], bool)> = self
             .support_planes
             .iter()
-            .map(|c| (*c, bounding_side(c, &world, depth).is_some()))
+            .zip(&bounding)
+            .map(|(c, b)| (*c, b.is_some()))
             .collect();
         let normals = scene_normals(
             points,
@@ -112,7 +113,7 @@ impl SceneVoting<'_> {
             normals,
             support: support.to_vec(),
             world,
-            planes: self.support_planes.to_vec(),
+            bounding: bounding.into_iter().flatten().collect(),
         };
         Ok((sensor, surface))
     }

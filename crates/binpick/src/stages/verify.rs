@@ -94,9 +94,9 @@ pub(crate) struct SceneSurface {
     pub support: Vec<bool>,
     /// The points that are not support.
     pub world: Vec<Point>,
-    /// The support planes found in preprocessing, `a x + b y + c z + d = 0` (unit normal,
-    /// mm), in either orientation.
-    pub planes: Vec<[f64; 4]>,
+    /// The support planes found in preprocessing that bound the parts, unit normal towards
+    /// them and offset (mm): [`bounding_planes`].
+    pub bounding: Vec<(Vector3<f64>, f64)>,
 }
 
 /// Everything verification reads, built once per scene.
@@ -140,9 +140,8 @@ impl<'a> Verifier<'a> {
             Some(&scene.normals),
         )
         .map_err(matching("view grid"))?;
-        let planes = bounding_planes(&scene.planes, &scene.world, sunk_depth_mm(scale));
         Ok(Self {
-            planes,
+            planes: scene.bounding.clone(),
             support_sample: binpick_cloud::strided_points(
                 &model.dense.points,
                 SUPPORT_SAMPLE_POINTS,
@@ -256,40 +255,38 @@ pub(crate) fn sunk_depth_mm(scale: &DerivedScale) -> f64 {
     SUPPORT_TOLERANCES * scale.tolerance_mm
 }
 
-/// The support planes that bound the parts, normals towards them: those with (almost) all
-/// the scene's non-support points `world` on one side, beyond `depth` mm
-/// (`MAX_BEHIND_RATIO`). A plane with parts
+/// For each support plane (`a x + b y + c z + d = 0`), whether it bounds the parts, with its
+/// normal turned towards them: it does when (almost) all the scene's non-support points
+/// `world` lie on one side of it, beyond `depth` mm (`MAX_BEHIND_RATIO`). A plane with parts
 /// on both sides (RANSAC laid across the tops of a layer of parts, say) bounds nothing.
-fn bounding_planes(planes: &[[f64; 4]], world: &[Point], depth: f64) -> Vec<(Vector3<f64>, f64)> {
+pub(crate) fn bounding_planes(
+    planes: &[[f64; 4]],
+    world: &[Point],
+    depth: f64,
+) -> Vec<Option<(Vector3<f64>, f64)>> {
     planes
         .iter()
-        .filter_map(|&[a, b, c, d]| {
-            let sign = bounding_side(&[a, b, c, d], world, depth)?;
-            Some((Vector3::new(a, b, c) * sign, d * sign))
+        .map(|&[a, b, c, d]| {
+            let n = Vector3::new(a, b, c);
+            let (mut front, mut behind) = (0usize, 0usize);
+            for p in world {
+                let side = n.dot(&Vector3::new(
+                    f64::from(p[0]),
+                    f64::from(p[1]),
+                    f64::from(p[2]),
+                )) + d;
+                front += usize::from(side > depth);
+                behind += usize::from(side < -depth);
+            }
+            let (major, minor, sign) = if front >= behind {
+                (front, behind, 1.0)
+            } else {
+                (behind, front, -1.0)
+            };
+            (major > 0 && minor as f64 <= MAX_BEHIND_RATIO * major as f64)
+                .then_some((n * sign, d * sign))
         })
         .collect()
-}
-
-/// Whether `plane` bounds the parts (see [`bounding_planes`]): the sign that turns its
-/// normal towards them, or None.
-pub(crate) fn bounding_side(plane: &[f64; 4], world: &[Point], depth: f64) -> Option<f64> {
-    let n = Vector3::new(plane[0], plane[1], plane[2]);
-    let (mut front, mut behind) = (0usize, 0usize);
-    for p in world {
-        let side = n.dot(&Vector3::new(
-            f64::from(p[0]),
-            f64::from(p[1]),
-            f64::from(p[2]),
-        )) + plane[3];
-        front += usize::from(side > depth);
-        behind += usize::from(side < -depth);
-    }
-    let (major, minor, sign) = if front >= behind {
-        (front, behind, 1.0)
-    } else {
-        (behind, front, -1.0)
-    };
-    (major > 0 && minor as f64 <= MAX_BEHIND_RATIO * major as f64).then_some(sign)
 }
 
 /// A view verdict as reported in a detection.
