@@ -16,8 +16,9 @@ pub struct ExplainConfig {
     /// Largest share of its visible surface the sensor may have seen through. Default 0.08,
     /// range 0-1.
     pub max_free_space: f64,
-    /// Largest share of its outline the scene's surface may carry on past. Default 0.5,
-    /// range 0-1.
+    /// Largest share of its outline the scene's surface may carry on past where no taken
+    /// part explains that surface (checked in the competition: a neighbouring part taken
+    /// first accounts for the surface beside it). Range 0-1 (1 = off).
     pub max_continued: f64,
     /// Smallest mean fit weight of the confirmed surface (`ViewScore::fit` / `explained`):
     /// the scene must lie close to the model, not just within the tolerance. Range 0-1.
@@ -89,8 +90,6 @@ impl ExplainConfig {
             Some(Rejection::OnSupport)
         } else if s.mean_fit() < self.min_fit {
             Some(Rejection::PoorFit)
-        } else if s.continued_ratio() > self.max_continued {
-            Some(Rejection::NoOutline)
         } else {
             None
         }
@@ -162,6 +161,17 @@ pub fn explain_scene(
                 continue;
             }
             still_open.push(i);
+            // Scene surface carrying on past its outline that no taken part explains: a
+            // pose laid inside a larger surface. It may yet be explained by a part taken
+            // later, so the hypothesis waits.
+            let unexplained_continuation = s
+                .continued_cells
+                .iter()
+                .filter(|&&c| !claimed.get(c as usize).copied().unwrap_or(false))
+                .count();
+            if unexplained_continuation as f64 > config.max_continued * f64::from(s.outline_edges) {
+                continue;
+            }
             // Well-fitting surface counts more than surface at the edge of the tolerance.
             let gain = new_fit - config.free_space_weight * f64::from(s.free_space);
             if best.is_none_or(|(g, _)| gain > g) {
@@ -181,8 +191,111 @@ pub fn explain_scene(
         taken.push(i);
         open.retain(|&j| j != i);
     }
+    // Those still open were only ever kept waiting by their outline.
     for &i in &open {
-        rejected[i].get_or_insert(Rejection::Explained);
+        rejected[i].get_or_insert(Rejection::NoOutline);
     }
     Ok(Explanation { taken, rejected })
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::Isometry3;
+
+    use super::*;
+    use crate::view::{RangeGrid, Sensor, ViewConfig};
+    use crate::{OrientedPoints, P3};
+
+    /// A flat square of `side` mm at height `z`, sampled every `step` mm, normals up.
+    fn square(x0: f32, y0: f32, side: f32, z: f32, step: f32) -> Vec<P3> {
+        let n = (side / step) as usize;
+        (0..n)
+            .flat_map(|i| (0..n).map(move |j| [x0 + i as f32 * step, y0 + j as f32 * step, z]))
+            .collect()
+    }
+
+    fn accept_all() -> ExplainConfig {
+        ExplainConfig {
+            min_visibility: 0.5,
+            max_free_space: 0.1,
+            max_continued: 0.2,
+            min_fit: 0.5,
+            min_explained_cells: 10,
+            max_below_support: 1.0,
+            max_explained_by_support: 1.0,
+            free_space_weight: 2.0,
+            min_new_share: 0.5,
+        }
+    }
+
+    #[test]
+    fn a_pose_inside_a_larger_surface_waits_for_a_part_that_explains_it() {
+        // Scene: a belt (background) at z = 0 carrying a 60 mm square box top at z = 10 and,
+        // beside it, a 20 mm square tile at z = 10 that stands alone.
+        let belt = square(-50.0, -50.0, 200.0, 0.0, 1.0);
+        let box_top = square(0.0, 0.0, 60.0, 10.0, 1.0);
+        let tile = square(80.0, 0.0, 20.0, 10.0, 1.0);
+        let mut points = belt.clone();
+        let mut background = vec![true; belt.len()];
+        for p in box_top.iter().chain(&tile) {
+            points.push(*p);
+            background.push(false);
+        }
+        let up = [0.0f32, 0.0, 1.0];
+        let normals = vec![up; points.len()];
+        let view = ViewConfig {
+            cell_mm: 1.0,
+            tolerance_mm: 1.5,
+            max_incidence_deg: 75.0,
+            max_normal_angle_deg: 45.0,
+        };
+        let grid = RangeGrid::new(
+            Sensor::orthographic([0.0, 0.0, 1.0]).unwrap(),
+            &view,
+            &points,
+            &background,
+            Some(&normals),
+        )
+        .unwrap();
+        // The part: a 20 mm square, modelled about its corner.
+        let part_points = square(0.0, 0.0, 20.0, 0.0, 1.0);
+        let part = OrientedPoints {
+            normals: vec![up; part_points.len()],
+            points: part_points,
+        };
+        let at = |x: f64, y: f64| Isometry3::translation(x, y, 10.0);
+        let on_tile = grid.score(&part, &at(80.0, 0.0), &view);
+        let inside_box = grid.score(&part, &at(20.0, 20.0), &view);
+        assert!(on_tile.visibility() > 0.9 && inside_box.visibility() > 0.9);
+        assert!(
+            on_tile.continued_ratio() < 0.05,
+            "the tile's outline is a depth edge: {}",
+            on_tile.continued_ratio()
+        );
+        assert!(
+            inside_box.continued_ratio() > 0.9,
+            "the box top carries on past a square laid inside it: {}",
+            inside_box.continued_ratio()
+        );
+        let alone = explain_scene(
+            &[on_tile.clone(), inside_box.clone()],
+            grid.cells(),
+            &accept_all(),
+        )
+        .unwrap();
+        assert_eq!(alone.taken, vec![0]);
+        assert_eq!(alone.rejected[1], Some(Rejection::NoOutline));
+        // A box (60 mm part) taken first explains the surface around the square: the square
+        // is then a repeat of it, not a part refused for its outline.
+        let box_part = square(0.0, 0.0, 60.0, 0.0, 1.0);
+        let box_model = OrientedPoints {
+            normals: vec![up; box_part.len()],
+            points: box_part,
+        };
+        let the_box = grid.score(&box_model, &at(0.0, 0.0), &view);
+        let with_box =
+            explain_scene(&[on_tile, inside_box, the_box], grid.cells(), &accept_all()).unwrap();
+        assert_eq!(with_box.taken, vec![2, 0]);
+        assert_eq!(with_box.rejected[1], Some(Rejection::Explained));
+    }
 }

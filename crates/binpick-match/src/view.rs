@@ -20,6 +20,9 @@ use nalgebra::{Isometry3, Point3, Vector3};
 
 use crate::{MatchError, OrientedPoints, P3};
 
+/// Empty cells beyond a rendered cell that make its side part of the model's outline.
+const OUTLINE_GAP: i64 = 3;
+
 /// Where the sensor is. "Closeness" below is a coordinate that grows towards the sensor, mm.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Sensor {
@@ -227,6 +230,10 @@ pub struct ViewScore {
     /// coincides with the scene's depth edges, a pose laid across other surfaces does not.
     pub outline_edges: u32,
     pub outline_continued: u32,
+    /// For each continued edge, the grid cell the scene carries on in (ascending): a
+    /// neighbouring part's surface continues a part's outline too, so the scene explanation
+    /// counts only continuations no taken part explains.
+    pub continued_cells: Vec<u32>,
     /// The explained cells (grid indices, ascending) and their fit weights, for the scene
     /// explanation.
     pub explained_cells: Vec<u32>,
@@ -577,12 +584,18 @@ impl RangeGrid {
         let tol = self.tolerance_mm;
         for cell in rendered {
             for (dc, dr) in [(1, 0), (-1, 0), (0, 1), (0, -1)] {
-                if has(cell.col + dc, cell.row + dr) {
+                // The model is sampled at about one point per cell, so its rendering has
+                // holes of a cell or two (more on slanted faces): an edge of the outline
+                // has `OUTLINE_GAP` empty cells beyond it.
+                if (1..=OUTLINE_GAP).any(|k| has(cell.col + k * dc, cell.row + k * dr)) {
                     continue;
                 }
                 s.outline_edges += 1;
                 let t = tol + cell.slack;
-                let carries = (1..=2).all(|k| {
+                // Checked beyond the gap: the sampled outline lies up to a cell inside the
+                // part's true edge, and ICP leaves a cell of slack.
+                let beyond = OUTLINE_GAP + 1..=OUTLINE_GAP + 2;
+                let carries = beyond.clone().all(|k| {
                     self.cell_index(cell.col + k * dc, cell.row + k * dr)
                         .is_some_and(|i| {
                             let v = f64::from(self.near[i]);
@@ -591,9 +604,16 @@ impl RangeGrid {
                                 && self.normal_agrees(i, &cell.normal)
                         })
                 });
-                s.outline_continued += u32::from(carries);
+                if carries {
+                    s.outline_continued += 1;
+                    let k = *beyond.start();
+                    if let Some(i) = self.cell_index(cell.col + k * dc, cell.row + k * dr) {
+                        s.continued_cells.push(i as u32);
+                    }
+                }
             }
         }
+        s.continued_cells.sort_unstable();
     }
 
     /// Indices of the model points the sensor would see at `pose` (facing it and not behind

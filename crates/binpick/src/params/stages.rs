@@ -443,8 +443,9 @@ stage_config! {
         /// Model surface steeper than this to the sensor's ray is not judged, deg.
         max_incidence_deg: f64 = 75.0, within(10.0, 89.0, "deg");
         /// A part must show at least this share of the surface the sensor would see of it
-        /// alone in that pose.
-        min_visibility: f64 = 0.25, within(0.0, 1.0, "");
+        /// alone in that pose. Below about half, the part cannot be picked and the scene
+        /// confirms too little of it to tell a right pose from a plausible wrong one.
+        min_visibility: f64 = 0.45, within(0.0, 1.0, "");
         /// The sensor may have seen through at most this share of that surface.
         max_free_space: f64 = 0.08, within(0.0, 1.0, "");
         /// At most this share of the part may lie behind a support plane (sunk into the
@@ -457,8 +458,10 @@ stage_config! {
         /// layer of shafts) would refuse true parts.
         max_explained_by_support: f64 = 0.5, within(0.0, 1.0, "");
         /// The scene's surface may carry on past at most this share of the part's outline
-        /// (a real part's outline is a depth edge of the scene).
-        max_continued: f64 = 1.0, within(0.0, 1.0, "");
+        /// where no part taken before it explains that surface (a real part's outline is a
+        /// depth edge of the scene or a neighbour's surface; a pose laid inside a larger
+        /// surface, a plate on a box top, is not). 1 = off.
+        max_continued: f64 = 0.2, within(0.0, 1.0, "");
         /// The confirmed surface's mean fit weight, 1 - (depth error / tolerance)^2 with a
         /// quarter for a neighbouring cell, must reach this (the scene must lie on the model,
         /// not just near it).
