@@ -21,7 +21,7 @@ pub struct Args {
     /// Scene cloud, if it moved since the result was written.
     #[arg(long)]
     pub scene: Option<PathBuf>,
-    /// Model cloud, if it moved since the result was written.
+    /// Model (cloud or mesh), if it moved since the result was written.
     #[arg(long)]
     pub model: Option<PathBuf>,
 }
@@ -47,12 +47,15 @@ pub fn run(a: Args) -> Result<()> {
             scene_path.display()
         )
     })?;
-    let model = load(&model_path, report.model_units, "model").with_context(|| {
-        format!(
-            "{file} names the model {}: use --model to point at the model cloud",
-            model_path.display()
-        )
-    })?;
+    // A mesh model (STL, OBJ) is sampled as `recognize` samples it.
+    let model = binpick::load_part(&model_path, report.model_units, &report.params)
+        .map(|(part, _)| part.cloud)
+        .with_context(|| {
+            format!(
+                "{file} names the model {}: use --model to point at the model (cloud or mesh)",
+                model_path.display()
+            )
+        })?;
     // The pictures are drawn over the scan, in the scanner's frame.
     report.express_in(&binpick::OutputFrame::scanner());
     let png = a
