@@ -109,7 +109,8 @@ pub enum Rejection {
     BelowSupport,
     /// More than `max_explained_by_support` of its confirmed surface is support.
     OnSupport,
-    /// The scene's surface carries on past more than `max_continued` of its outline.
+    /// The scene's surface carries on past more than `max_continued` of its outline where
+    /// no taken part explains it.
     NoOutline,
     /// The confirmed surface fits worse than `min_fit`.
     PoorFit,
@@ -214,7 +215,7 @@ mod tests {
             .collect()
     }
 
-    fn accept_all() -> ExplainConfig {
+    fn square_parts() -> ExplainConfig {
         ExplainConfig {
             min_visibility: 0.5,
             max_free_space: 0.1,
@@ -280,7 +281,7 @@ mod tests {
         let alone = explain_scene(
             &[on_tile.clone(), inside_box.clone()],
             grid.cells(),
-            &accept_all(),
+            &square_parts(),
         )
         .unwrap();
         assert_eq!(alone.taken, vec![0]);
@@ -293,8 +294,12 @@ mod tests {
             points: box_part,
         };
         let the_box = grid.score(&box_model, &at(0.0, 0.0), &view);
-        let with_box =
-            explain_scene(&[on_tile, inside_box, the_box], grid.cells(), &accept_all()).unwrap();
+        let with_box = explain_scene(
+            &[on_tile, inside_box, the_box],
+            grid.cells(),
+            &square_parts(),
+        )
+        .unwrap();
         assert_eq!(with_box.taken, vec![2, 0]);
         assert_eq!(with_box.rejected[1], Some(Rejection::Explained));
     }
