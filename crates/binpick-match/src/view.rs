@@ -230,7 +230,7 @@ pub struct ViewScore {
     /// coincides with the scene's depth edges, a pose laid across other surfaces does not.
     pub outline_edges: u32,
     pub outline_continued: u32,
-    /// For each continued edge, the grid cell the scene carries on in (ascending): a
+    /// For each continued edge, the grid cell the scene carries on in: a
     /// neighbouring part's surface continues a part's outline too, so the scene explanation
     /// counts only continuations no taken part explains.
     pub continued_cells: Vec<u32>,
@@ -576,10 +576,8 @@ impl RangeGrid {
     /// cells out, at the edge cell's depth within the tolerance, same orientation, not
     /// background).
     fn outline(&self, rendered: &[RenderedCell], s: &mut ViewScore) {
-        let has = |c: i64, r: i64| {
-            rendered
-                .binary_search_by(|e| (e.row, e.col).cmp(&(r, c)))
-                .is_ok()
+        let Some(mask) = RenderedMask::new(rendered) else {
+            return;
         };
         let tol = self.tolerance_mm;
         for cell in rendered {
@@ -587,33 +585,28 @@ impl RangeGrid {
                 // The model is sampled at about one point per cell, so its rendering has
                 // holes of a cell or two (more on slanted faces): an edge of the outline
                 // has `OUTLINE_GAP` empty cells beyond it.
-                if (1..=OUTLINE_GAP).any(|k| has(cell.col + k * dc, cell.row + k * dr)) {
+                if (1..=OUTLINE_GAP).any(|k| mask.has(cell.col + k * dc, cell.row + k * dr)) {
                     continue;
                 }
                 s.outline_edges += 1;
                 let t = tol + cell.slack;
                 // Checked beyond the gap: the sampled outline lies up to a cell inside the
                 // part's true edge, and ICP leaves a cell of slack.
-                let beyond = OUTLINE_GAP + 1..=OUTLINE_GAP + 2;
-                let carries = beyond.clone().all(|k| {
-                    self.cell_index(cell.col + k * dc, cell.row + k * dr)
-                        .is_some_and(|i| {
-                            let v = f64::from(self.near[i]);
-                            !self.background[i]
-                                && (v - cell.closeness).abs() <= t
-                                && self.normal_agrees(i, &cell.normal)
-                        })
+                let beyond = [OUTLINE_GAP + 1, OUTLINE_GAP + 2]
+                    .map(|k| self.cell_index(cell.col + k * dc, cell.row + k * dr));
+                let carries = beyond.iter().all(|i| {
+                    i.is_some_and(|i| {
+                        !self.background[i]
+                            && (f64::from(self.near[i]) - cell.closeness).abs() <= t
+                            && self.normal_agrees(i, &cell.normal)
+                    })
                 });
-                if carries {
+                if let (true, Some(i)) = (carries, beyond[0]) {
                     s.outline_continued += 1;
-                    let k = *beyond.start();
-                    if let Some(i) = self.cell_index(cell.col + k * dc, cell.row + k * dr) {
-                        s.continued_cells.push(i as u32);
-                    }
+                    s.continued_cells.push(i as u32);
                 }
             }
         }
-        s.continued_cells.sort_unstable();
     }
 
     /// Indices of the model points the sensor would see at `pose` (facing it and not behind
@@ -653,6 +646,45 @@ impl RangeGrid {
             }
         }
         out
+    }
+}
+
+/// Which cells a rendering covers, as a bitmap over its bounding box: the outline test
+/// looks up a dozen neighbours per rendered cell.
+struct RenderedMask {
+    col0: i64,
+    row0: i64,
+    cols: i64,
+    rows: i64,
+    covered: Vec<bool>,
+}
+
+impl RenderedMask {
+    /// None for an empty rendering.
+    fn new(rendered: &[RenderedCell]) -> Option<Self> {
+        // Sorted by row: the first and last cells bound the rows.
+        let (row0, row1) = (rendered.first()?.row, rendered.last()?.row);
+        let col0 = rendered.iter().map(|c| c.col).min()?;
+        let col1 = rendered.iter().map(|c| c.col).max()?;
+        let (cols, rows) = (col1 - col0 + 1, row1 - row0 + 1);
+        let mut covered = vec![false; (cols * rows) as usize];
+        for c in rendered {
+            covered[((c.row - row0) * cols + c.col - col0) as usize] = true;
+        }
+        Some(Self {
+            col0,
+            row0,
+            cols,
+            rows,
+            covered,
+        })
+    }
+
+    fn has(&self, col: i64, row: i64) -> bool {
+        let (c, r) = (col - self.col0, row - self.row0);
+        (0..self.cols).contains(&c)
+            && (0..self.rows).contains(&r)
+            && self.covered[(r * self.cols + c) as usize]
     }
 }
 
