@@ -144,24 +144,26 @@ impl SceneVoting<'_> {
         };
         let (pose, score) = judge(pose)?;
         let accept = self.acceptance(&verifier);
-        let mut refusal = accept.rejection(&score).map(|r| format!("{r:?}"));
-        // As in `detect`: the pose competes with its near-symmetric turns for the scene; a
-        // turn that explains it better wins (a half-turned bracket loses to the right one).
-        if refusal.is_none() && self.params.verify.near_symmetry_variants {
-            let mut scores = vec![score.clone()];
+        // As in `detect`, the pose is judged by the scene explanation (its outline is checked
+        // there) and competes with its near-symmetric turns: a turn that explains the scene
+        // better wins (a half-turned bracket loses to the right one).
+        let mut scores = vec![score.clone()];
+        if accept.rejection(&score).is_none() && self.params.verify.near_symmetry_variants {
             for s in &self.model.near_symmetries {
                 scores.push(judge(&(pose * s))?.1);
             }
-            let explanation = explain_scene(&scores, verifier.grid.cells(), &accept)
-                .map_err(matching("scene explanation"))?;
-            if let Some(&k) = explanation.taken.first().filter(|&&k| k != 0) {
-                refusal = Some(format!(
-                    "NearSymmetry: its near-symmetric turn {} explains more of the scene ({} \
-                     cells against {})",
-                    k, scores[k].explained, score.explained
-                ));
-            }
         }
+        let explanation = explain_scene(&scores, verifier.grid.cells(), &accept)
+            .map_err(matching("scene explanation"))?;
+        let refusal = match (explanation.rejected[0], explanation.taken.first()) {
+            (None, _) => None,
+            (Some(Rejection::Explained), Some(&k)) => Some(format!(
+                "NearSymmetry: its near-symmetric turn {} explains more of the scene ({} \
+                 cells against {})",
+                k, scores[k].explained, score.explained
+            )),
+            (Some(why), _) => Some(format!("{why:?}")),
+        };
         let scores = verifier.thesis_scores(&pose);
         Ok(PoseCheck {
             pose,
