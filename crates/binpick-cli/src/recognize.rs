@@ -172,10 +172,13 @@ pub fn write_pictures(
     ply: Option<&std::path::Path>,
 ) -> Result<()> {
     if let Some(png) = png {
-        let title = format!(
-            "{} in {} (algorithm {})",
-            report.model, report.scene, report.algorithm
-        );
+        // The algorithm number means something to the thesis engines only.
+        let how = if report.engine == binpick::Engine::SceneVoting.name() {
+            report.engine.clone()
+        } else {
+            format!("{}, algorithm {}", report.engine, report.algorithm)
+        };
+        let title = format!("{} in {} ({how})", report.model, report.scene);
         crate::plots::render(
             scene,
             model,

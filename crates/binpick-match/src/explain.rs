@@ -37,6 +37,11 @@ pub struct ExplainConfig {
     /// A hypothesis must explain at least this share of its confirmed cells that no taken
     /// part explains yet. Default 0.5, range 0-1.
     pub min_new_share: f64,
+    /// Gains within this share of the best are a tie, won by the hypothesis with the most
+    /// votes of its own: the view cannot tell a near-symmetric part from its turn when the
+    /// feature that differs is hidden, the votes over the whole part can. Range 0-1 (0 =
+    /// the best gain wins).
+    pub tie_share: f64,
 }
 
 impl ExplainConfig {
@@ -72,6 +77,9 @@ impl ExplainConfig {
         }
         if !unit(self.min_new_share) {
             return Err(MatchError::config("min_new_share", "expected 0-1"));
+        }
+        if !unit(self.tie_share) {
+            return Err(MatchError::config("tie_share", "expected 0-1"));
         }
         Ok(())
     }
@@ -128,13 +136,26 @@ pub struct Explanation {
 }
 
 /// Greedy scene explanation over `scores` (one per hypothesis) on a grid of `cells` cells.
-/// Deterministic: ties go to the lower index.
+/// `votes[i]` are the votes hypothesis i got for its own pose (0 for a pose nobody voted
+/// for, such as a near-symmetric turn), and `same_pose(i, j)` says hypotheses i and j are
+/// one pose (within the pose clustering's tolerances): in a near-tie (`tie_share`) the votes
+/// choose between different poses, the gain between hypotheses of one pose. Deterministic:
+/// remaining ties go to the lower index.
 pub fn explain_scene(
     scores: &[ViewScore],
+    votes: &[u32],
+    same_pose: impl Fn(usize, usize) -> bool,
     cells: usize,
     config: &ExplainConfig,
 ) -> Result<Explanation, MatchError> {
     config.validate()?;
+    if votes.len() != scores.len() {
+        return Err(MatchError::Count {
+            what: "hypothesis votes",
+            expected: scores.len(),
+            got: votes.len(),
+        });
+    }
     let mut rejected: Vec<Option<Rejection>> = scores.iter().map(|s| config.rejection(s)).collect();
     let mut open: Vec<usize> = (0..scores.len())
         .filter(|&i| rejected[i].is_none())
@@ -142,7 +163,7 @@ pub fn explain_scene(
     let mut claimed = vec![false; cells];
     let mut taken = Vec::new();
     loop {
-        let mut best: Option<(f64, usize)> = None;
+        let mut gains: Vec<(f64, usize)> = Vec::with_capacity(open.len());
         let mut still_open = Vec::with_capacity(open.len());
         for &i in &open {
             let s = &scores[i];
@@ -174,14 +195,32 @@ pub fn explain_scene(
                 continue;
             }
             // Well-fitting surface counts more than surface at the edge of the tolerance.
-            let gain = new_fit - config.free_space_weight * f64::from(s.free_space);
-            if best.is_none_or(|(g, _)| gain > g) {
-                best = Some((gain, i));
-            }
+            gains.push((
+                new_fit - config.free_space_weight * f64::from(s.free_space),
+                i,
+            ));
         }
         open = still_open;
-        let Some((_, i)) = best else {
+        // Best gain first, then the lower index.
+        let better = |a: &(f64, usize), b: &(f64, usize)| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1));
+        let Some(&(top, best)) = gains.iter().max_by(|a, b| better(a, b)) else {
             break;
+        };
+        let tied: Vec<&(f64, usize)> = gains
+            .iter()
+            .filter(|(g, _)| *g >= top - config.tie_share * top.abs())
+            .collect();
+        let voted = tied
+            .iter()
+            .max_by(|a, b| votes[a.1].cmp(&votes[b.1]).then(better(a, b)))
+            .map_or(best, |t| t.1);
+        let i = if votes[voted] > votes[best] && !same_pose(voted, best) {
+            tied.iter()
+                .filter(|t| t.1 == voted || same_pose(t.1, voted))
+                .max_by(|a, b| better(a, b))
+                .map_or(voted, |t| t.1)
+        } else {
+            best
         };
         for &c in &scores[i].explained_cells {
             if let Some(slot) = claimed.get_mut(c as usize) {
@@ -226,6 +265,7 @@ mod tests {
             max_explained_by_support: 1.0,
             free_space_weight: 2.0,
             min_new_share: 0.5,
+            tie_share: 0.0,
         }
     }
 
@@ -280,6 +320,8 @@ mod tests {
         );
         let alone = explain_scene(
             &[on_tile.clone(), inside_box.clone()],
+            &[0, 0],
+            |_, _| false,
             grid.cells(),
             &square_parts(),
         )
@@ -296,11 +338,72 @@ mod tests {
         let the_box = grid.score(&box_model, &at(0.0, 0.0), &view);
         let with_box = explain_scene(
             &[on_tile, inside_box, the_box],
+            &[0, 0, 0],
+            |_, _| false,
             grid.cells(),
             &square_parts(),
         )
         .unwrap();
         assert_eq!(with_box.taken, vec![2, 0]);
         assert_eq!(with_box.rejected[1], Some(Rejection::Explained));
+    }
+
+    /// A score explaining grid cells `cells` at fit `fit` each, of `visible` visible cells.
+    fn explaining(cells: std::ops::Range<u32>, fit: f32, visible: u32) -> ViewScore {
+        let explained_cells: Vec<u32> = cells.collect();
+        ViewScore {
+            visible,
+            explained: explained_cells.len() as u32,
+            fit: f64::from(fit) * explained_cells.len() as f64,
+            explained_fit: vec![fit; explained_cells.len()],
+            explained_cells,
+            ..ViewScore::default()
+        }
+    }
+
+    #[test]
+    fn a_near_tie_goes_to_the_pose_with_more_votes_of_its_own() {
+        // A part and its near-symmetric turn explain almost the same cells (the flange that
+        // differs is hidden): the turn explains 1 % more of them. A third hypothesis stands
+        // apart and explains less.
+        let right = explaining(0..1000, 0.9, 1100);
+        let turn = explaining(5..1015, 0.9, 1100);
+        let apart = explaining(2000..2500, 0.9, 550);
+        let scores = [right, turn, apart];
+        let votes = [60_000, 0, 100_000];
+        let config = ExplainConfig {
+            tie_share: 0.02,
+            ..square_parts()
+        };
+        let different = |_: usize, _: usize| false;
+        let e = explain_scene(&scores, &votes, different, 3000, &config).unwrap();
+        assert_eq!(e.taken, vec![0, 2], "the voted pose wins the near-tie");
+        assert_eq!(e.rejected[1], Some(Rejection::Explained));
+        // Without the tie band the larger gain wins, whatever the votes.
+        let strict = ExplainConfig {
+            tie_share: 0.0,
+            ..config.clone()
+        };
+        let e = explain_scene(&scores, &votes, different, 3000, &strict).unwrap();
+        assert_eq!(e.taken, vec![1, 2]);
+        // Two hypotheses of one pose: the better fit wins, not the more voted.
+        let e = explain_scene(&scores, &votes, |_, _| true, 3000, &config).unwrap();
+        assert_eq!(e.taken, vec![1, 2]);
+        // A clear win is not a tie: the part explaining 10 % more is taken first.
+        let larger = explaining(5..1105, 0.9, 1200);
+        let e = explain_scene(
+            &[scores[0].clone(), larger],
+            &[60_000, 0],
+            different,
+            3000,
+            &config,
+        )
+        .unwrap();
+        assert_eq!(e.taken, vec![1]);
+        // The votes must match the hypotheses.
+        assert!(matches!(
+            explain_scene(&scores, &votes[..2], different, 3000, &config),
+            Err(MatchError::Count { .. })
+        ));
     }
 }

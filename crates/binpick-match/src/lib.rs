@@ -110,6 +110,12 @@ pub enum MatchError {
         points: usize,
         normals: usize,
     },
+    #[error("{what}: {got} given for {expected} hypotheses")]
+    Count {
+        what: &'static str,
+        expected: usize,
+        got: usize,
+    },
     #[error("{what}: a coordinate is not finite")]
     NonFinite { what: &'static str },
     #[error("{what}: a normal is zero or not finite")]

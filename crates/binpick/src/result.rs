@@ -832,9 +832,10 @@ pub struct RecognitionReport {
     /// both clouds.
     #[serde(default)]
     pub model_units: binpick_cloud::Units,
-    /// Thesis algorithm number (1 or 2).
+    /// Thesis algorithm number (1 or 2), used by the thesis engines only.
     pub algorithm: u8,
-    /// "rust" (this library) or "reference" (the plain C++ PCL pipeline).
+    /// The engine that ran: "scene-voting" (the default), "thesis", or "reference" (the
+    /// thesis's algorithms in plain C++ against PCL).
     pub engine: String,
     /// Every parameter used.
     pub params: Params,

@@ -70,6 +70,8 @@ struct Candidate {
     /// Index of the pose cluster it came from.
     hypothesis: usize,
     votes: u32,
+    /// A near-symmetric turn of the voted pose (its votes are the voted pose's).
+    turned: bool,
     /// The voted pose (composed with a near-symmetry for a variant).
     initial: Isometry3<f64>,
     /// After refinement.
@@ -153,8 +155,16 @@ impl SceneVoting<'_> {
                 scores.push(judge(&(pose * s))?.1);
             }
         }
-        let explanation = explain_scene(&scores, verifier.grid.cells(), &accept)
-            .map_err(matching("scene explanation"))?;
+        // Nobody voted for the given pose or its turns: the best gain wins.
+        let votes = vec![0; scores.len()];
+        let explanation = explain_scene(
+            &scores,
+            &votes,
+            |_, _| false,
+            verifier.grid.cells(),
+            &accept,
+        )
+        .map_err(matching("scene explanation"))?;
         let refusal = match (explanation.rejected[0], explanation.taken.first()) {
             (None, _) => None,
             (Some(Rejection::Explained), Some(&k)) => Some(format!(
@@ -226,15 +236,7 @@ impl SceneVoting<'_> {
         let verifier = Verifier::new(sensor, &surface, self.model, self.scale, &p.verify)?;
         let accept = self.acceptance(&verifier);
         let mut candidates = self.candidates(&verifier, &accept, &hypotheses, 0)?;
-        let mut explanation = explain_scene(
-            &candidates
-                .iter()
-                .map(|c| c.score.clone())
-                .collect::<Vec<_>>(),
-            verifier.grid.cells(),
-            &accept,
-        )
-        .map_err(matching("scene explanation"))?;
+        let mut explanation = self.explain(&candidates, verifier.grid.cells(), &accept)?;
         // Further rounds vote over what the taken parts leave unexplained.
         let mut offset = hypotheses.len();
         for _ in 1..p.voting.rounds {
@@ -257,15 +259,7 @@ impl SceneVoting<'_> {
             report.rejected_on_support += on_support.len();
             candidates.extend(seen);
             offset += more.len();
-            explanation = explain_scene(
-                &candidates
-                    .iter()
-                    .map(|c| c.score.clone())
-                    .collect::<Vec<_>>(),
-                verifier.grid.cells(),
-                &accept,
-            )
-            .map_err(matching("scene explanation"))?;
+            explanation = self.explain(&candidates, verifier.grid.cells(), &accept)?;
         }
         report.candidates = candidates.len();
         let scores: Vec<ViewScore> = candidates.iter().map(|c| c.score.clone()).collect();
@@ -340,8 +334,10 @@ impl SceneVoting<'_> {
             .par_iter()
             .map(|&(k, ref pose)| {
                 let c = &candidates[k];
-                self.deadline
-                    .partial(self.verify(verifier, c.hypothesis, c.votes, pose))
+                self.deadline.partial(
+                    self.verify(verifier, c.hypothesis, c.votes, pose)
+                        .map(|v| Candidate { turned: true, ..v }),
+                )
             })
             .collect::<Result<_>>()?;
         // Interrupted, a candidate and its turns compete only when all of them were
@@ -417,6 +413,7 @@ impl SceneVoting<'_> {
         Ok(Candidate {
             hypothesis,
             votes,
+            turned: false,
             initial: *initial,
             score,
             pose,
@@ -447,6 +444,33 @@ impl SceneVoting<'_> {
         Ok((refined, icp_report(icp.as_ref(), adopted), after))
     }
 
+    /// The greedy scene explanation over `candidates`: a near-tie between different poses
+    /// goes to the pose with more votes of its own (a turn has none), one between
+    /// hypotheses of one pose (within the pose clustering's tolerances) to the better fit.
+    fn explain(
+        &self,
+        candidates: &[Candidate],
+        cells: usize,
+        accept: &ExplainConfig,
+    ) -> Result<binpick_match::Explanation> {
+        let scores: Vec<ViewScore> = candidates.iter().map(|c| c.score.clone()).collect();
+        let votes: Vec<u32> = candidates
+            .iter()
+            .map(|c| if c.turned { 0 } else { c.votes })
+            .collect();
+        let v = &self.params.voting;
+        let near_mm = v.cluster_translation_diameters * self.scale.model_diameter_mm;
+        let near_rad = v.cluster_rotation_deg.to_radians();
+        let centre = self.model.centre;
+        let same_pose = |i: usize, j: usize| {
+            let (a, b) = (&candidates[i].pose, &candidates[j].pose);
+            (a * centre - b * centre).norm() < near_mm
+                && self.part.symmetries.angle(a, b) < near_rad
+        };
+        explain_scene(&scores, &votes, same_pose, cells, accept)
+            .map_err(matching("scene explanation"))
+    }
+
     /// Acceptance and competition settings at this scale.
     fn acceptance(&self, verifier: &Verifier) -> ExplainConfig {
         let v = &self.params.verify;
@@ -463,6 +487,7 @@ impl SceneVoting<'_> {
                 .max(1.0) as u32,
             free_space_weight: v.free_space_weight,
             min_new_share: v.min_new_share,
+            tie_share: v.tie_share,
         }
     }
 
