@@ -11,7 +11,7 @@ use crate::view::ViewScore;
 /// Acceptance of one hypothesis and the competition between them.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ExplainConfig {
-    /// Smallest share of its visible surface the scene must confirm. Default 0.25, range 0-1.
+    /// Smallest share of its visible surface the scene must confirm. Range 0-1.
     pub min_visibility: f64,
     /// Largest share of its visible surface the sensor may have seen through. Default 0.08,
     /// range 0-1.
@@ -37,10 +37,11 @@ pub struct ExplainConfig {
     /// A hypothesis must explain at least this share of its confirmed cells that no taken
     /// part explains yet. Default 0.5, range 0-1.
     pub min_new_share: f64,
-    /// Gains within this share of the best are a tie, won by the hypothesis with the most
-    /// votes of its own: the view cannot tell a near-symmetric part from its turn when the
-    /// feature that differs is hidden, the votes over the whole part can. Range 0-1 (0 =
-    /// the best gain wins).
+    /// Gains within this share of the best are a tie. Between different poses it is won by
+    /// the one with the most votes of its own (the view cannot tell a near-symmetric part
+    /// from its turn when the feature that differs is hidden, the votes over the whole part
+    /// can); between hypotheses of one pose by the better gain. Range 0-1 (0 = the best
+    /// gain wins).
     pub tie_share: f64,
 }
 
