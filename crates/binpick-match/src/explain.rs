@@ -8,6 +8,13 @@
 use crate::MatchError;
 use crate::view::ViewScore;
 
+/// Two parts touching side by side share no surface; two poses laid across one larger
+/// surface usually do. Share of the smaller's explained cells (ICP leaves a cell of slack
+/// along the seam).
+const PAIR_MAX_OVERLAP: f64 = 0.1;
+/// ... and neither may be covered by more than this share of its visible surface.
+const PAIR_MAX_COVERED: f64 = 0.02;
+
 /// Acceptance of one hypothesis and the competition between them.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ExplainConfig {
@@ -165,6 +172,8 @@ pub fn explain_scene(
     let mut taken = Vec::new();
     loop {
         let mut gains: Vec<(f64, usize)> = Vec::with_capacity(open.len());
+        // Kept waiting by their outline: (gain, index, unexplained continuation).
+        let mut waiting: Vec<(f64, usize, usize)> = Vec::new();
         let mut still_open = Vec::with_capacity(open.len());
         for &i in &open {
             let s = &scores[i];
@@ -184,6 +193,8 @@ pub fn explain_scene(
                 continue;
             }
             still_open.push(i);
+            // Well-fitting surface counts more than surface at the edge of the tolerance.
+            let gain = new_fit - config.free_space_weight * f64::from(s.free_space);
             // Scene surface carrying on past its outline that no taken part explains: a
             // pose laid inside a larger surface. It may yet be explained by a part taken
             // later, so the hypothesis waits.
@@ -193,35 +204,20 @@ pub fn explain_scene(
                 .filter(|&&c| !claimed.get(c as usize).copied().unwrap_or(false))
                 .count();
             if unexplained_continuation as f64 > config.max_continued * f64::from(s.outline_edges) {
+                waiting.push((gain, i, unexplained_continuation));
                 continue;
             }
-            // Well-fitting surface counts more than surface at the edge of the tolerance.
-            gains.push((
-                new_fit - config.free_space_weight * f64::from(s.free_space),
-                i,
-            ));
+            gains.push((gain, i));
         }
         open = still_open;
-        // Best gain first, then the lower index.
-        let better = |a: &(f64, usize), b: &(f64, usize)| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1));
-        let Some(&(top, best)) = gains.iter().max_by(|a, b| better(a, b)) else {
-            break;
-        };
-        let tied: Vec<&(f64, usize)> = gains
-            .iter()
-            .filter(|(g, _)| *g >= top - config.tie_share * top.abs())
-            .collect();
-        let voted = tied
-            .iter()
-            .max_by(|a, b| votes[a.1].cmp(&votes[b.1]).then(better(a, b)))
-            .map_or(best, |t| t.1);
-        let i = if votes[voted] > votes[best] && !same_pose(voted, best) {
-            tied.iter()
-                .filter(|t| t.1 == voted || same_pose(t.1, voted))
-                .max_by(|a, b| better(a, b))
-                .map_or(voted, |t| t.1)
-        } else {
-            best
+        let i = match choose(&gains, votes, &same_pose, config.tie_share) {
+            Some(i) => i,
+            // Parts that touch at one height carry on each other's outline, so each waits
+            // for the other; one whose outline the others waiting explain breaks the wait.
+            None => match unblock(scores, &waiting, &claimed, config.max_continued) {
+                Some(i) => i,
+                None => break,
+            },
         };
         for &c in &scores[i].explained_cells {
             if let Some(slot) = claimed.get_mut(c as usize) {
@@ -237,6 +233,98 @@ pub fn explain_scene(
         rejected[i].get_or_insert(Rejection::NoOutline);
     }
     Ok(Explanation { taken, rejected })
+}
+
+/// The hypothesis to take among `gains` ((gain, index), none waiting): the best gain, or in
+/// a near-tie (`tie_share`) the pose with more votes of its own (see [`explain_scene`]).
+fn choose(
+    gains: &[(f64, usize)],
+    votes: &[u32],
+    same_pose: &impl Fn(usize, usize) -> bool,
+    tie_share: f64,
+) -> Option<usize> {
+    // Best gain first, then the lower index.
+    let better = |a: &(f64, usize), b: &(f64, usize)| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1));
+    let &(top, best) = gains.iter().max_by(|a, b| better(a, b))?;
+    let tied: Vec<&(f64, usize)> = gains
+        .iter()
+        .filter(|(g, _)| *g >= top - tie_share * top.abs())
+        .collect();
+    let voted = tied
+        .iter()
+        .max_by(|a, b| votes[a.1].cmp(&votes[b.1]).then(better(a, b)))
+        .map_or(best, |t| t.1);
+    Some(if votes[voted] > votes[best] && !same_pose(voted, best) {
+        tied.iter()
+            .filter(|t| t.1 == voted || same_pose(t.1, voted))
+            .max_by(|a, b| better(a, b))
+            .map_or(voted, |t| t.1)
+    } else {
+        best
+    })
+}
+
+/// When every open hypothesis waits for its outline ((gain, index, continuation no taken
+/// part explains) in `waiting`): one of a pair of waiting hypotheses whose outlines the
+/// other explains (all but `max_continued` of each), that share almost none of their
+/// surface (`PAIR_MAX_OVERLAP`) and that nothing covers (`PAIR_MAX_COVERED`): two parts
+/// touching at one height, each carrying on the other's outline. Of those, the one with the
+/// least continuation no taken part explains, then the best gain. Poses laid on a larger
+/// surface do not pair up: the surface carries on past the outline of both, they overlap,
+/// or (a box top under other things) the cover cuts their outline.
+fn unblock(
+    scores: &[ViewScore],
+    waiting: &[(f64, usize, usize)],
+    claimed: &[bool],
+    max_continued: f64,
+) -> Option<usize> {
+    // Whether `b` explains all but `max_continued` of the continuation of `a`.
+    let explains_outline = |a: usize, b: usize| {
+        let (sa, sb) = (&scores[a], &scores[b]);
+        let residual = sa
+            .continued_cells
+            .iter()
+            .filter(|&&c| {
+                !claimed.get(c as usize).copied().unwrap_or(false)
+                    && sb.explained_cells.binary_search(&c).is_err()
+            })
+            .count();
+        residual as f64 <= max_continued * f64::from(sa.outline_edges)
+    };
+    // Nothing lies on it: a pose laid across a partly covered surface (a box top under other
+    // things) has its outline cut by the cover, where twins side by side on a belt do not.
+    let uncovered = |a: usize| scores[a].covered_ratio() <= PAIR_MAX_COVERED;
+    // Whether `a` and `b` share at most `PAIR_MAX_OVERLAP` of the smaller's cells.
+    let apart = |a: usize, b: usize| {
+        let (sa, sb) = (&scores[a], &scores[b]);
+        let shared = sa
+            .explained_cells
+            .iter()
+            .filter(|c| sb.explained_cells.binary_search(c).is_ok())
+            .count();
+        shared as f64 <= PAIR_MAX_OVERLAP * f64::from(sa.explained.min(sb.explained))
+    };
+    waiting
+        .iter()
+        .filter(|&&(_, a, _)| {
+            waiting.iter().any(|&(_, b, _)| {
+                b != a
+                    && uncovered(a)
+                    && uncovered(b)
+                    && explains_outline(a, b)
+                    && explains_outline(b, a)
+                    && apart(a, b)
+            })
+        })
+        .min_by(|x, y| {
+            let share =
+                |w: &(f64, usize, usize)| w.2 as f64 / f64::from(scores[w.1].outline_edges.max(1));
+            share(x)
+                .total_cmp(&share(y))
+                .then(y.0.total_cmp(&x.0))
+                .then(x.1.cmp(&y.1))
+        })
+        .map(|w| w.1)
 }
 
 #[cfg(test)]
@@ -406,5 +494,65 @@ mod tests {
             explain_scene(&scores, &votes[..2], different, 3000, &config),
             Err(MatchError::Count { .. })
         ));
+    }
+
+    #[test]
+    fn two_touching_parts_at_one_height_are_both_taken() {
+        // Two 20 mm tiles side by side on a belt, touching, at the same height: each carries
+        // on the other's outline along the shared side, and only the two together end in
+        // depth edges all round.
+        let belt = square(-50.0, -50.0, 200.0, 0.0, 1.0);
+        let tiles = square(0.0, 0.0, 20.0, 10.0, 1.0)
+            .into_iter()
+            .chain(square(20.0, 0.0, 20.0, 10.0, 1.0));
+        let mut points = belt.clone();
+        let mut background = vec![true; belt.len()];
+        for p in tiles {
+            points.push(p);
+            background.push(false);
+        }
+        let up = [0.0f32, 0.0, 1.0];
+        let normals = vec![up; points.len()];
+        let view = ViewConfig {
+            cell_mm: 1.0,
+            tolerance_mm: 1.5,
+            max_incidence_deg: 75.0,
+            max_normal_angle_deg: 45.0,
+        };
+        let grid = RangeGrid::new(
+            Sensor::orthographic([0.0, 0.0, 1.0]).unwrap(),
+            &view,
+            &points,
+            &background,
+            Some(&normals),
+        )
+        .unwrap();
+        let part_points = square(0.0, 0.0, 20.0, 0.0, 1.0);
+        let part = OrientedPoints {
+            normals: vec![up; part_points.len()],
+            points: part_points,
+        };
+        let at = |x: f64| Isometry3::translation(x, 0.0, 10.0);
+        let left = grid.score(&part, &at(0.0), &view);
+        let right = grid.score(&part, &at(20.0), &view);
+        for s in [&left, &right] {
+            assert!(
+                s.continued_ratio() > square_parts().max_continued,
+                "the shared side carries on each outline: {}",
+                s.continued_ratio()
+            );
+        }
+        // Straddling the seam: half on each tile, its outline carried on past both ends.
+        let straddling = grid.score(&part, &at(10.0), &view);
+        let e = explain_scene(
+            &[straddling, left, right],
+            &[0, 0, 0],
+            |_, _| false,
+            grid.cells(),
+            &square_parts(),
+        )
+        .unwrap();
+        assert_eq!(e.taken, vec![1, 2], "{e:?}");
+        assert_eq!(e.rejected[0], Some(Rejection::Explained));
     }
 }
