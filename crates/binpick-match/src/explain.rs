@@ -358,17 +358,17 @@ mod tests {
         }
     }
 
-    #[test]
-    fn a_pose_inside_a_larger_surface_waits_for_a_part_that_explains_it() {
-        // Scene: a belt (background) at z = 0 carrying a 60 mm square box top at z = 10 and,
-        // beside it, a 20 mm square tile at z = 10 that stands alone.
+    /// A scanner above a belt (background, 200 mm square at z = 0) carrying `objects`
+    /// (upward normals), its view grid at 1 mm cells, and the part: a 20 mm square modelled
+    /// about its corner.
+    fn tiles_on_a_belt(
+        objects: impl IntoIterator<Item = [f32; 3]>,
+    ) -> (RangeGrid, ViewConfig, OrientedPoints) {
         let belt = square(-50.0, -50.0, 200.0, 0.0, 1.0);
-        let box_top = square(0.0, 0.0, 60.0, 10.0, 1.0);
-        let tile = square(80.0, 0.0, 20.0, 10.0, 1.0);
-        let mut points = belt.clone();
         let mut background = vec![true; belt.len()];
-        for p in box_top.iter().chain(&tile) {
-            points.push(*p);
+        let mut points = belt;
+        for p in objects {
+            points.push(p);
             background.push(false);
         }
         let up = [0.0f32, 0.0, 1.0];
@@ -387,12 +387,21 @@ mod tests {
             Some(&normals),
         )
         .unwrap();
-        // The part: a 20 mm square, modelled about its corner.
         let part_points = square(0.0, 0.0, 20.0, 0.0, 1.0);
         let part = OrientedPoints {
             normals: vec![up; part_points.len()],
             points: part_points,
         };
+        (grid, view, part)
+    }
+
+    #[test]
+    fn a_pose_inside_a_larger_surface_waits_for_a_part_that_explains_it() {
+        // Scene: a belt (background) at z = 0 carrying a 60 mm square box top at z = 10 and,
+        // beside it, a 20 mm square tile at z = 10 that stands alone.
+        let box_top = square(0.0, 0.0, 60.0, 10.0, 1.0);
+        let tile = square(80.0, 0.0, 20.0, 10.0, 1.0);
+        let (grid, view, part) = tiles_on_a_belt(box_top.into_iter().chain(tile));
         let at = |x: f64, y: f64| Isometry3::translation(x, y, 10.0);
         let on_tile = grid.score(&part, &at(80.0, 0.0), &view);
         let inside_box = grid.score(&part, &at(20.0, 20.0), &view);
@@ -421,7 +430,7 @@ mod tests {
         // is then a repeat of it, not a part refused for its outline.
         let box_part = square(0.0, 0.0, 60.0, 0.0, 1.0);
         let box_model = OrientedPoints {
-            normals: vec![up; box_part.len()],
+            normals: vec![[0.0, 0.0, 1.0]; box_part.len()],
             points: box_part,
         };
         let the_box = grid.score(&box_model, &at(0.0, 0.0), &view);
@@ -501,37 +510,10 @@ mod tests {
         // Two 20 mm tiles side by side on a belt, touching, at the same height: each carries
         // on the other's outline along the shared side, and only the two together end in
         // depth edges all round.
-        let belt = square(-50.0, -50.0, 200.0, 0.0, 1.0);
         let tiles = square(0.0, 0.0, 20.0, 10.0, 1.0)
             .into_iter()
             .chain(square(20.0, 0.0, 20.0, 10.0, 1.0));
-        let mut points = belt.clone();
-        let mut background = vec![true; belt.len()];
-        for p in tiles {
-            points.push(p);
-            background.push(false);
-        }
-        let up = [0.0f32, 0.0, 1.0];
-        let normals = vec![up; points.len()];
-        let view = ViewConfig {
-            cell_mm: 1.0,
-            tolerance_mm: 1.5,
-            max_incidence_deg: 75.0,
-            max_normal_angle_deg: 45.0,
-        };
-        let grid = RangeGrid::new(
-            Sensor::orthographic([0.0, 0.0, 1.0]).unwrap(),
-            &view,
-            &points,
-            &background,
-            Some(&normals),
-        )
-        .unwrap();
-        let part_points = square(0.0, 0.0, 20.0, 0.0, 1.0);
-        let part = OrientedPoints {
-            normals: vec![up; part_points.len()],
-            points: part_points,
-        };
+        let (grid, view, part) = tiles_on_a_belt(tiles);
         let at = |x: f64| Isometry3::translation(x, 0.0, 10.0);
         let left = grid.score(&part, &at(0.0), &view);
         let right = grid.score(&part, &at(20.0), &view);
