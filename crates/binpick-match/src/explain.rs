@@ -147,8 +147,10 @@ pub struct Explanation {
 /// `votes[i]` are the votes hypothesis i got for its own pose (0 for a pose nobody voted
 /// for, such as a near-symmetric turn), and `same_pose(i, j)` says hypotheses i and j are
 /// one pose (within the pose clustering's tolerances): in a near-tie (`tie_share`) the votes
-/// choose between different poses, the gain between hypotheses of one pose. Deterministic:
-/// remaining ties go to the lower index.
+/// choose between different poses, the gain between hypotheses of one pose. A hypothesis
+/// whose outline the scene carries on past waits for a part that explains that surface; when
+/// all wait, one of two uncovered twins explaining each other's outline is taken (see
+/// `unblock`). Deterministic: remaining ties go to the lower index.
 pub fn explain_scene(
     scores: &[ViewScore],
     votes: &[u32],
