@@ -360,6 +360,13 @@ mod tests {
         }
     }
 
+    /// The scene explanation of `scores` on `grid` with the square parts' settings, no votes
+    /// and no two hypotheses of one pose.
+    fn unvoted_squares(scores: &[ViewScore], grid: &RangeGrid) -> Explanation {
+        let votes = vec![0; scores.len()];
+        explain_scene(scores, &votes, |_, _| false, grid.cells(), &square_parts()).unwrap()
+    }
+
     /// A scanner above a belt (background, 200 mm square at z = 0) carrying `objects`
     /// (upward normals), its view grid at 1 mm cells, and the part: a 20 mm square modelled
     /// about its corner.
@@ -418,14 +425,7 @@ mod tests {
             "the box top carries on past a square laid inside it: {}",
             inside_box.continued_ratio()
         );
-        let alone = explain_scene(
-            &[on_tile.clone(), inside_box.clone()],
-            &[0, 0],
-            |_, _| false,
-            grid.cells(),
-            &square_parts(),
-        )
-        .unwrap();
+        let alone = unvoted_squares(&[on_tile.clone(), inside_box.clone()], &grid);
         assert_eq!(alone.taken, vec![0]);
         assert_eq!(alone.rejected[1], Some(Rejection::NoOutline));
         // A box (60 mm part) taken first explains the surface around the square: the square
@@ -436,14 +436,7 @@ mod tests {
             points: box_part,
         };
         let the_box = grid.score(&box_model, &at(0.0, 0.0), &view);
-        let with_box = explain_scene(
-            &[on_tile, inside_box, the_box],
-            &[0, 0, 0],
-            |_, _| false,
-            grid.cells(),
-            &square_parts(),
-        )
-        .unwrap();
+        let with_box = unvoted_squares(&[on_tile, inside_box, the_box], &grid);
         assert_eq!(with_box.taken, vec![2, 0]);
         assert_eq!(with_box.rejected[1], Some(Rejection::Explained));
     }
@@ -528,14 +521,7 @@ mod tests {
         }
         // Straddling the seam: half on each tile, its outline carried on past both ends.
         let straddling = grid.score(&part, &at(10.0), &view);
-        let e = explain_scene(
-            &[straddling, left, right],
-            &[0, 0, 0],
-            |_, _| false,
-            grid.cells(),
-            &square_parts(),
-        )
-        .unwrap();
+        let e = unvoted_squares(&[straddling, left, right], &grid);
         assert_eq!(e.taken, vec![1, 2], "{e:?}");
         assert_eq!(e.rejected[0], Some(Rejection::Explained));
     }
