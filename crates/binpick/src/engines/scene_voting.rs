@@ -136,16 +136,16 @@ impl SceneVoting<'_> {
             self.scale,
             &self.params.verify,
         )?;
+        let accept = self.acceptance(&verifier);
         let judge = |initial: &Isometry3<f64>| -> Result<(Isometry3<f64>, ViewScore)> {
             if refine {
-                let (pose, _, score) = self.refine_if_better(&verifier, initial)?;
+                let (pose, _, score) = self.refine_if_better(&verifier, &accept, initial)?;
                 Ok((pose, score))
             } else {
                 Ok((*initial, verifier.score(initial)))
             }
         };
         let (pose, score) = judge(pose)?;
-        let accept = self.acceptance(&verifier);
         // As in `detect`, the pose is judged by the scene explanation (its outline is checked
         // there) and competes with its near-symmetric turns: a turn that explains the scene
         // better wins (a half-turned bracket loses to the right one).
@@ -308,7 +308,7 @@ impl SceneVoting<'_> {
             .par_iter()
             .enumerate()
             .map(|(i, h)| {
-                let c = self.verify(verifier, offset + i, h.votes, &h.pose);
+                let c = self.verify(verifier, accept, offset + i, h.votes, &h.pose);
                 self.deadline.partial(c)
             })
             .collect::<Result<_>>()?;
@@ -335,7 +335,7 @@ impl SceneVoting<'_> {
             .map(|&(k, ref pose)| {
                 let c = &candidates[k];
                 self.deadline.partial(
-                    self.verify(verifier, c.hypothesis, c.votes, pose)
+                    self.verify(verifier, accept, c.hypothesis, c.votes, pose)
                         .map(|v| Candidate { turned: true, ..v }),
                 )
             })
@@ -404,12 +404,13 @@ impl SceneVoting<'_> {
     fn verify(
         &self,
         verifier: &Verifier,
+        accept: &ExplainConfig,
         hypothesis: usize,
         votes: u32,
         initial: &Isometry3<f64>,
     ) -> Result<Candidate> {
         self.deadline.check("verification")?;
-        let (pose, icp, score) = self.refine_if_better(verifier, initial)?;
+        let (pose, icp, score) = self.refine_if_better(verifier, accept, initial)?;
         Ok(Candidate {
             hypothesis,
             votes,
@@ -424,24 +425,40 @@ impl SceneVoting<'_> {
     /// ICP refinement, adopted only when the view supports the refined pose at least as
     /// well as the initial one: among touching parts ICP can slide a right pose onto a
     /// neighbour's surface (measured on a bin of rings: true poses refined from a view fit
-    /// of 0.77 down to 0.37-0.54).
+    /// of 0.77 down to 0.37-0.54). A pose hopeless at the start (`ExplainConfig::hopeless`)
+    /// is probed after a few iterations and stops there when it still is.
     fn refine_if_better(
         &self,
         verifier: &Verifier,
+        accept: &ExplainConfig,
         initial: &Isometry3<f64>,
     ) -> Result<(Isometry3<f64>, IcpReport, ViewScore)> {
-        let (refined, icp) = verifier.refine(initial)?;
         let w = self.params.verify.free_space_weight;
-        let after = verifier.score(&refined);
-        // Without an ICP answer the refined pose is the initial one: no second score.
-        let adopted = icp.is_some() && {
-            let before = verifier.score(initial);
-            if after.support(w) < before.support(w) {
-                return Ok((*initial, icp_report(icp.as_ref(), false), before));
+        let before = verifier.score(initial);
+        let mut probed: Option<ViewScore> = None;
+        let mut probe = |pose: &Isometry3<f64>| {
+            let s = verifier.score(pose);
+            let worth = !accept.hopeless(&s);
+            if !worth {
+                probed = Some(s);
             }
-            true
+            worth
         };
-        Ok((refined, icp_report(icp.as_ref(), adopted), after))
+        let (refined, icp) = verifier.refine(
+            initial,
+            accept
+                .hopeless(&before)
+                .then_some(&mut probe as &mut dyn FnMut(&Isometry3<f64>) -> bool),
+        )?;
+        // Without an ICP answer the refined pose is the initial one: no second score.
+        let Some(out) = icp else {
+            return Ok((*initial, icp_report(None, false), before));
+        };
+        let after = probed.unwrap_or_else(|| verifier.score(&refined));
+        if after.support(w) < before.support(w) {
+            return Ok((*initial, icp_report(Some(&out), false), before));
+        }
+        Ok((refined, icp_report(Some(&out), true), after))
     }
 
     /// The greedy scene explanation over `candidates`: a near-tie between different poses
