@@ -36,7 +36,8 @@ use crate::stages::hypotheses::{VotingModel, matching, scene_normals, scene_samp
 use crate::stages::part::Part;
 use crate::stages::rank::height_mm;
 use crate::stages::verify::{
-    SceneSurface, Verifier, bounding_planes, resolve_sensor, sunk_depth_mm, view_check, viewpoint,
+    Probe, SceneSurface, Verifier, bounding_planes, resolve_sensor, sunk_depth_mm, view_check,
+    viewpoint,
 };
 
 /// A scene sample is explained by a taken part within this many view tolerances of its
@@ -448,7 +449,7 @@ impl SceneVoting<'_> {
             initial,
             accept
                 .hopeless(&before)
-                .then_some(&mut probe as &mut dyn FnMut(&Isometry3<f64>) -> bool),
+                .then_some(&mut probe as &mut Probe<'_>),
         )?;
         // Without an ICP answer the refined pose is the initial one: no second score.
         let Some(out) = icp else {

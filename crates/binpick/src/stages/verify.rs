@@ -39,6 +39,9 @@ const SUPPORT_TOLERANCES: f64 = 3.0;
 /// the generalisation benchmark; 20-60 % for planes RANSAC laid across tops of parts).
 const MAX_BEHIND_RATIO: f64 = 0.05;
 
+/// Asked mid-refinement whether the pose reached is worth refining further.
+pub(crate) type Probe<'a> = dyn FnMut(&Isometry3<f64>) -> bool + 'a;
+
 /// Where the sensor was: the configured one, or for `auto` a camera at the origin when the
 /// scene lies far out along one side of it, else a scanner far above along `up`.
 pub(crate) fn resolve_sensor(cfg: &SensorConfig, up: [f64; 3], points: &[Point]) -> Result<Sensor> {
@@ -183,7 +186,7 @@ impl<'a> Verifier<'a> {
     pub(crate) fn refine(
         &self,
         pose: &Isometry3<f64>,
-        mut probe: Option<&mut dyn FnMut(&Isometry3<f64>) -> bool>,
+        mut probe: Option<&mut Probe<'_>>,
     ) -> Result<(Isometry3<f64>, Option<binpick_pcl::IcpOutcome>)> {
         let mut pose = *pose;
         let mut last = None;
