@@ -352,6 +352,37 @@ struct Grid {
 
 const NONE: u32 = u32::MAX;
 
+/// A cell and its 26 neighbours, by distance: the cell, its faces, edges, then corners.
+const NEIGHBOUR_CELLS: [[i64; 3]; 27] = [
+    [0, 0, 0],
+    [-1, 0, 0],
+    [1, 0, 0],
+    [0, -1, 0],
+    [0, 1, 0],
+    [0, 0, -1],
+    [0, 0, 1],
+    [-1, -1, 0],
+    [-1, 1, 0],
+    [1, -1, 0],
+    [1, 1, 0],
+    [-1, 0, -1],
+    [-1, 0, 1],
+    [1, 0, -1],
+    [1, 0, 1],
+    [0, -1, -1],
+    [0, -1, 1],
+    [0, 1, -1],
+    [0, 1, 1],
+    [-1, -1, -1],
+    [-1, -1, 1],
+    [-1, 1, -1],
+    [-1, 1, 1],
+    [1, -1, -1],
+    [1, -1, 1],
+    [1, 1, -1],
+    [1, 1, 1],
+];
+
 impl Grid {
     fn new(cell: f64) -> Self {
         Self {
@@ -368,26 +399,24 @@ impl Grid {
 
     fn has_neighbour_within(&self, points: &[[f64; 3]], p: [f64; 3], r2: f64) -> bool {
         let c = self.cell(p);
-        for dx in -1..=1i64 {
-            for dy in -1..=1i64 {
-                for dz in -1..=1i64 {
-                    let key = [
-                        c[0].saturating_add(dx),
-                        c[1].saturating_add(dy),
-                        c[2].saturating_add(dz),
-                    ];
-                    let mut i = self.heads.get(&key).copied().unwrap_or(NONE);
-                    while let Some(q) = points.get(i as usize) {
-                        let d = sub(*q, p);
-                        if dot(d, d) < r2 {
-                            return true;
-                        }
-                        i = self.next.get(i as usize).copied().unwrap_or(NONE);
-                    }
+        // Nearest cells first: most candidates are turned down, and by a sample in their
+        // own cell or a face neighbour (the answer does not depend on the order).
+        NEIGHBOUR_CELLS.iter().any(|d| {
+            let key = [
+                c[0].saturating_add(d[0]),
+                c[1].saturating_add(d[1]),
+                c[2].saturating_add(d[2]),
+            ];
+            let mut i = self.heads.get(&key).copied().unwrap_or(NONE);
+            while let Some(q) = points.get(i as usize) {
+                let d = sub(*q, p);
+                if dot(d, d) < r2 {
+                    return true;
                 }
+                i = self.next.get(i as usize).copied().unwrap_or(NONE);
             }
-        }
-        false
+            false
+        })
     }
 
     fn insert(&mut self, p: [f64; 3], index: u32) {
