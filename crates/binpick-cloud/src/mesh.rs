@@ -326,15 +326,22 @@ impl Hasher for FxHasher {
     fn finish(&self) -> u64 {
         self.0
     }
+    // Integer arrays (the grid's cell keys) arrive here as their bytes: a round per 8 bytes,
+    // not per byte.
     fn write(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            self.write_u64(u64::from(b));
+        for chunk in bytes.chunks(8) {
+            let mut b = [0u8; 8];
+            b[..chunk.len()].copy_from_slice(chunk);
+            self.write_u64(u64::from_le_bytes(b));
         }
     }
     fn write_u32(&mut self, i: u32) {
         self.write_u64(u64::from(i));
     }
     fn write_i64(&mut self, i: i64) {
+        self.write_u64(i as u64);
+    }
+    fn write_usize(&mut self, i: usize) {
         self.write_u64(i as u64);
     }
     fn write_u64(&mut self, i: u64) {
