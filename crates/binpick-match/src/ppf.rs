@@ -665,6 +665,29 @@ pub(crate) mod tests {
         )
     }
 
+    /// The L part's table settings: 3 mm steps, pairs up to 75 mm.
+    fn l_part_config() -> PpfConfig {
+        PpfConfig {
+            distance_step_mm: 3.0,
+            feature_angle_bins: 15,
+            alpha_bins: 30,
+            max_pair_distance_mm: 75.0,
+            spread: 0.25,
+            max_pairs_per_bin: 1000,
+        }
+    }
+
+    /// A small deterministic generator (xorshift32): `next(m)` is in `0..m`.
+    pub(crate) fn xorshift(seed: u32) -> impl FnMut(u32) -> u32 {
+        let mut state = seed;
+        move |m| {
+            state ^= state << 13;
+            state ^= state >> 17;
+            state ^= state << 5;
+            state % m
+        }
+    }
+
     /// The peaks as first written: every local maximum collected and sorted.
     fn peaks_by_sorting(
         acc: &[u32],
@@ -697,26 +720,9 @@ pub(crate) mod tests {
 
     #[test]
     fn peaks_kept_while_scanning_are_those_of_a_full_sort() {
-        let table = PpfModel::new(
-            &l_part(3.0),
-            PpfConfig {
-                distance_step_mm: 3.0,
-                feature_angle_bins: 15,
-                alpha_bins: 30,
-                max_pair_distance_mm: 75.0,
-                spread: 0.25,
-                max_pairs_per_bin: 1000,
-            },
-        )
-        .unwrap();
+        let table = PpfModel::new(&l_part(3.0), l_part_config()).unwrap();
         let n_alpha = 12;
-        let mut state = 0x2545_f491_u32;
-        let mut next = |m: u32| {
-            state ^= state << 13;
-            state ^= state >> 17;
-            state ^= state << 5;
-            state % m
-        };
+        let mut next = xorshift(0x2545_f491);
         let mut nonempty = 0;
         for trial in 0..2000 {
             // Few distinct counts, so ties and plateaus are common.
@@ -742,15 +748,7 @@ pub(crate) mod tests {
     #[test]
     fn votes_recover_two_instances() {
         let model = l_part(3.0);
-        let config = PpfConfig {
-            distance_step_mm: 3.0,
-            feature_angle_bins: 15,
-            alpha_bins: 30,
-            max_pair_distance_mm: 75.0,
-            spread: 0.25,
-            max_pairs_per_bin: 1000,
-        };
-        let table = PpfModel::new(&model, config).unwrap();
+        let table = PpfModel::new(&model, l_part_config()).unwrap();
         assert!(table.entries() > model.len() * (model.len() - 1));
         let t1 = pose([100.0, 20.0, 5.0], [0.2, 1.0, 0.3], 70.0);
         let t2 = pose([-90.0, 40.0, 0.0], [1.0, -0.5, 0.2], 150.0);

@@ -747,13 +747,7 @@ mod tests {
 
     #[test]
     fn nearest_per_cell_is_that_of_a_stable_sort() {
-        let mut state = 0x9e37_79b9_u32;
-        let mut next = |m: u32| {
-            state ^= state << 13;
-            state ^= state >> 17;
-            state ^= state << 5;
-            state % m
-        };
+        let mut next = crate::ppf::tests::xorshift(0x9e37_79b9);
         for trial in 0..300 {
             // Few cells and few depths: many points share a cell and a depth.
             let drawn: Vec<RenderedCell> = (0..trial % 60)
