@@ -291,7 +291,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     out.model_preparation_ms = prep_ms;
     println!(
-        "(ms, medians of {} runs; * = summed over worker threads, wall time is 'total'; model preparation {prep_ms:.0} ms)",
+        "(ms, medians of {} runs; * = thesis engine: summed over the clusters' worker threads, scene voting: wall time of voting and of verification; 'total' is wall time; model preparation {prep_ms:.0} ms)",
         a.repeat.max(1)
     );
     if !out.comparisons.is_empty() {
