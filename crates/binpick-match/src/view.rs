@@ -440,30 +440,45 @@ impl RangeGrid {
 
     /// Renders `model` (dense points with outward normals, model frame) at `pose` as the
     /// sensor would see it alone: per cell the nearest model surface facing the sensor, in
-    /// cell order.
+    /// cell order. With `facing`, every model point facing the sensor at all (steeper ones
+    /// too) is listed there, projected, from the same pass.
     fn render(
         &self,
         model: &OrientedPoints,
         pose: &Isometry3<f64>,
         max_incidence_cos: f64,
+        mut facing: Option<&mut Vec<FacingPoint>>,
     ) -> Rendering {
         let mut cells: Vec<RenderedCell> = Vec::with_capacity(model.len());
-        for (p, n) in model.points.iter().zip(&model.normals) {
+        for (i, (p, n)) in model.points.iter().zip(&model.normals).enumerate() {
             let q = pose * to_point(p);
             let normal =
                 pose.rotation * Vector3::new(f64::from(n[0]), f64::from(n[1]), f64::from(n[2]));
             let cos = normal.dot(&self.projector.sensor.towards(&q));
-            if cos < max_incidence_cos {
+            let listed = facing.is_some() && cos >= 0.0;
+            if cos < max_incidence_cos && !listed {
                 continue;
             }
             let Some((u, v, closeness)) = self.projector.project(&q) else {
                 continue;
             };
+            let (col, row) = (u.floor() as i64, v.floor() as i64);
+            if let (true, Some(f)) = (listed, facing.as_deref_mut()) {
+                f.push(FacingPoint {
+                    index: i as u32,
+                    col,
+                    row,
+                    closeness,
+                });
+            }
+            if cos < max_incidence_cos {
+                continue;
+            }
             // Within one cell a slanted surface spans this much depth.
             let slope = (1.0 - cos * cos).max(0.0).sqrt() / cos;
             cells.push(RenderedCell {
-                col: u.floor() as i64,
-                row: v.floor() as i64,
+                col,
+                row,
                 closeness,
                 slack: slope * self.projector.cell_mm(closeness),
                 position: q,
@@ -491,7 +506,7 @@ impl RangeGrid {
         config: &ViewConfig,
     ) -> ViewScore {
         let cos_limit = config.max_incidence_deg.to_radians().cos();
-        let rendered = self.render(model, pose, cos_limit);
+        let rendered = self.render(model, pose, cos_limit, None);
         let mut s = ViewScore {
             visible: rendered.cells.len() as u32,
             ..ViewScore::default()
@@ -608,30 +623,27 @@ impl RangeGrid {
         config: &ViewConfig,
     ) -> Vec<u32> {
         let cos_limit = config.max_incidence_deg.to_radians().cos();
-        let rendered = self.render(model, pose, cos_limit);
-        let front = |c: i64, r: i64| rendered.get(c, r).map(|e| (e.closeness, e.slack));
-        let mut out = Vec::new();
-        for (i, (p, n)) in model.points.iter().zip(&model.normals).enumerate() {
-            let q = pose * to_point(p);
-            let normal =
-                pose.rotation * Vector3::new(f64::from(n[0]), f64::from(n[1]), f64::from(n[2]));
-            if normal.dot(&self.projector.sensor.towards(&q)) < 0.0 {
-                continue;
-            }
-            let Some((u, v, closeness)) = self.projector.project(&q) else {
-                continue;
-            };
-            let visible = match front(u.floor() as i64, v.floor() as i64) {
-                Some((nearest, slack)) => closeness >= nearest - self.tolerance_mm - slack,
+        let mut facing = Vec::new();
+        let rendered = self.render(model, pose, cos_limit, Some(&mut facing));
+        facing
+            .into_iter()
+            .filter(|f| match rendered.get(f.col, f.row) {
+                Some(e) => f.closeness >= e.closeness - self.tolerance_mm - e.slack,
                 // Steeper than the rendering limit but facing the sensor: keep it.
                 None => true,
-            };
-            if visible {
-                out.push(i as u32);
-            }
-        }
-        out
+            })
+            .map(|f| f.index)
+            .collect()
     }
+}
+
+/// A model point facing the sensor, projected: its index and cell, and how close it is
+/// (mm, grows towards the sensor).
+struct FacingPoint {
+    index: u32,
+    col: i64,
+    row: i64,
+    closeness: f64,
 }
 
 /// A model rendered into the view: the nearest model surface per cell, in (row, col)
