@@ -24,7 +24,7 @@ const ICP_POINTS: usize = 800;
 /// Iterations of the coarse pass after which a hopeless pose stops refining: on the
 /// generalisation benchmark the view score there tells hopeless poses apart as well as
 /// after all 15 (the lowest visibility of a part taken in the end: 0.30 at 5, 0.31 at 15).
-pub(crate) const PROBE_ITERATIONS: u32 = 5;
+const PROBE_ITERATIONS: u32 = 5;
 /// The thesis's outlier distance relative to its resolution (4 mm at 1 mm, 4.3 #12).
 const OUTLIER_RESOLUTIONS: f64 = 4.0;
 /// Orthographic sensors are placed this far along `up` for normal orientation, mm.
