@@ -155,7 +155,9 @@ pub struct Explanation {
     pub rejected: Vec<Option<Rejection>>,
 }
 
-/// Greedy scene explanation over `scores` (one per hypothesis) on a grid of `cells` cells.
+/// Greedy scene explanation over `scores` (one per hypothesis) on a view grid whose cells
+/// `already_explained` marks as explained before any part is taken (the belt, floor or wall
+/// the support planes explain: a pose laid half on the floor gains nothing from the floor).
 /// `votes[i]` are the votes hypothesis i got for its own pose (0 for a pose nobody voted
 /// for, such as a near-symmetric turn), and `same_pose(i, j)` says hypotheses i and j are
 /// one pose (within the pose clustering's tolerances): in a near-tie (`tie_share`) the votes
@@ -167,7 +169,7 @@ pub fn explain_scene(
     scores: &[ViewScore],
     votes: &[u32],
     same_pose: impl Fn(usize, usize) -> bool,
-    cells: usize,
+    already_explained: &[bool],
     config: &ExplainConfig,
 ) -> Result<Explanation, MatchError> {
     config.validate()?;
@@ -182,7 +184,7 @@ pub fn explain_scene(
     let mut open: Vec<usize> = (0..scores.len())
         .filter(|&i| rejected[i].is_none())
         .collect();
-    let mut claimed = vec![false; cells];
+    let mut claimed = already_explained.to_vec();
     let mut taken = Vec::new();
     loop {
         let mut gains: Vec<(f64, usize)> = Vec::with_capacity(open.len());
@@ -376,7 +378,14 @@ mod tests {
     /// and no two hypotheses of one pose.
     fn unvoted_squares(scores: &[ViewScore], grid: &RangeGrid) -> Explanation {
         let votes = vec![0; scores.len()];
-        explain_scene(scores, &votes, |_, _| false, grid.cells(), &square_parts()).unwrap()
+        explain_scene(
+            scores,
+            &votes,
+            |_, _| false,
+            &vec![false; grid.cells()],
+            &square_parts(),
+        )
+        .unwrap()
     }
 
     /// A scanner above a belt (background, 200 mm square at z = 0) carrying `objects`
@@ -467,6 +476,40 @@ mod tests {
     }
 
     #[test]
+    fn background_cells_are_those_whose_nearest_surface_is_background() {
+        // A 20 mm tile at z = 10 on the belt: its cells are not background, the belt's are.
+        let (grid, _, _) = tiles_on_a_belt(square(0.0, 0.0, 20.0, 10.0, 1.0));
+        let all = grid.background_cells(|_| true);
+        assert_eq!(all.len(), grid.cells());
+        let belt = all.iter().filter(|&&b| b).count();
+        assert_eq!(belt, 200 * 200 - 20 * 20);
+        // `keep` sees the cell's point: only the belt's left half.
+        let left = grid.background_cells(|p| p[0] < 50.0);
+        assert_eq!(left.iter().filter(|&&b| b).count(), 100 * 200 - 20 * 20);
+    }
+
+    #[test]
+    fn surface_the_support_already_explains_is_no_gain() {
+        // A right pose explains 1000 cells of a part. A wrong pose (a bracket turned and
+        // shifted so one flange lies on the floor) explains 600 of the same cells and 800
+        // cells of floor: counted, it gains the most and the right pose repeats it.
+        let right = explaining(0..1000, 0.9, 1100);
+        let on_floor = explaining(400..1800, 0.9, 1500);
+        let scores = [right, on_floor];
+        let votes = [0, 0];
+        let none = vec![false; 3000];
+        let e = explain_scene(&scores, &votes, |_, _| false, &none, &square_parts()).unwrap();
+        assert_eq!(e.taken, vec![1], "floor counted as the part's own surface");
+        assert_eq!(e.rejected[0], Some(Rejection::Explained));
+        // The floor is the support's: the right pose wins and the other repeats it.
+        let mut floor = none.clone();
+        floor[1000..1800].fill(true);
+        let e = explain_scene(&scores, &votes, |_, _| false, &floor, &square_parts()).unwrap();
+        assert_eq!(e.taken, vec![0]);
+        assert_eq!(e.rejected[1], Some(Rejection::Explained));
+    }
+
+    #[test]
     fn a_near_tie_goes_to_the_pose_with_more_votes_of_its_own() {
         // A part and its near-symmetric turn explain almost the same cells (the flange that
         // differs is hidden): the turn explains 1 % more of them. A third hypothesis stands
@@ -481,7 +524,7 @@ mod tests {
             ..square_parts()
         };
         let different = |_: usize, _: usize| false;
-        let e = explain_scene(&scores, &votes, different, 3000, &config).unwrap();
+        let e = explain_scene(&scores, &votes, different, &[false; 3000], &config).unwrap();
         assert_eq!(e.taken, vec![0, 2], "the voted pose wins the near-tie");
         assert_eq!(e.rejected[1], Some(Rejection::Explained));
         // Without the tie band the larger gain wins, whatever the votes.
@@ -489,10 +532,10 @@ mod tests {
             tie_share: 0.0,
             ..config.clone()
         };
-        let e = explain_scene(&scores, &votes, different, 3000, &strict).unwrap();
+        let e = explain_scene(&scores, &votes, different, &[false; 3000], &strict).unwrap();
         assert_eq!(e.taken, vec![1, 2]);
         // Two hypotheses of one pose: the better fit wins, not the more voted.
-        let e = explain_scene(&scores, &votes, |_, _| true, 3000, &config).unwrap();
+        let e = explain_scene(&scores, &votes, |_, _| true, &[false; 3000], &config).unwrap();
         assert_eq!(e.taken, vec![1, 2]);
         // A clear win is not a tie: the part explaining 10 % more is taken first.
         let larger = explaining(5..1105, 0.9, 1200);
@@ -500,14 +543,14 @@ mod tests {
             &[scores[0].clone(), larger],
             &[60_000, 0],
             different,
-            3000,
+            &[false; 3000],
             &config,
         )
         .unwrap();
         assert_eq!(e.taken, vec![1]);
         // The votes must match the hypotheses.
         assert!(matches!(
-            explain_scene(&scores, &votes[..2], different, 3000, &config),
+            explain_scene(&scores, &votes[..2], different, &[false; 3000], &config),
             Err(MatchError::Count { .. })
         ));
     }

@@ -427,6 +427,15 @@ impl RangeGrid {
         self.near.len()
     }
 
+    /// Per cell: its nearest scene surface is background and `keep` holds for that point.
+    pub fn background_cells(&self, keep: impl Fn(&P3) -> bool) -> Vec<bool> {
+        self.background
+            .iter()
+            .zip(&self.point)
+            .map(|(&b, p)| b && keep(p))
+            .collect()
+    }
+
     /// The sensor this grid was built for.
     pub fn sensor(&self) -> &Sensor {
         &self.projector.sensor

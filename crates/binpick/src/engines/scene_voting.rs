@@ -162,7 +162,7 @@ impl SceneVoting<'_> {
             &scores,
             &votes,
             |_, _| false,
-            verifier.grid.cells(),
+            &verifier.support_explained,
             &accept,
         )
         .map_err(matching("scene explanation"))?;
@@ -237,7 +237,7 @@ impl SceneVoting<'_> {
         let verifier = Verifier::new(sensor, &surface, self.model, self.scale, &p.verify)?;
         let accept = self.acceptance(&verifier);
         let mut candidates = self.candidates(&verifier, &accept, &hypotheses, 0)?;
-        let mut explanation = self.explain(&candidates, verifier.grid.cells(), &accept)?;
+        let mut explanation = self.explain(&candidates, &verifier.support_explained, &accept)?;
         // Further rounds vote over what the taken parts leave unexplained.
         let mut offset = hypotheses.len();
         for _ in 1..p.voting.rounds {
@@ -260,7 +260,7 @@ impl SceneVoting<'_> {
             report.rejected_on_support += on_support.len();
             candidates.extend(seen);
             offset += more.len();
-            explanation = self.explain(&candidates, verifier.grid.cells(), &accept)?;
+            explanation = self.explain(&candidates, &verifier.support_explained, &accept)?;
         }
         report.candidates = candidates.len();
         let scores: Vec<ViewScore> = candidates.iter().map(|c| c.score.clone()).collect();
@@ -468,7 +468,7 @@ impl SceneVoting<'_> {
     fn explain(
         &self,
         candidates: &[Candidate],
-        cells: usize,
+        already_explained: &[bool],
         accept: &ExplainConfig,
     ) -> Result<binpick_match::Explanation> {
         let scores: Vec<ViewScore> = candidates.iter().map(|c| c.score.clone()).collect();
@@ -485,7 +485,7 @@ impl SceneVoting<'_> {
             (a * centre - b * centre).norm() < near_mm
                 && self.part.symmetries.angle(a, b) < near_rad
         };
-        explain_scene(&scores, &votes, same_pose, cells, accept)
+        explain_scene(&scores, &votes, same_pose, already_explained, accept)
             .map_err(matching("scene explanation"))
     }
 

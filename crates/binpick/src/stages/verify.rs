@@ -120,6 +120,9 @@ pub(crate) struct Verifier<'a> {
     planes: Vec<(Vector3<f64>, f64)>,
     /// A fixed sample of the model's surface checked against them (model frame).
     support_sample: Vec<Point3<f64>>,
+    /// Per grid cell: the scene's surface there is one of those planes. The plane explains
+    /// it already; a part explaining it too gains nothing (a pose laid half on the floor).
+    pub support_explained: Vec<bool>,
 }
 
 /// The thesis's validators of a pose, on the visible model surface.
@@ -147,7 +150,16 @@ impl<'a> Verifier<'a> {
             Some(&scene.normals),
         )
         .map_err(matching("view grid"))?;
+        let on_plane = scale.support_distance_mm;
+        let support_explained = grid.background_cells(|p| {
+            let q = Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+            scene
+                .bounding
+                .iter()
+                .any(|(n, d)| (n.dot(&q) + d).abs() <= on_plane)
+        });
         Ok(Self {
+            support_explained,
             planes: scene.bounding.clone(),
             support_sample: binpick_cloud::strided_points(
                 &model.dense.points,
