@@ -307,6 +307,59 @@ fn ratio(a: u32, b: u32) -> f64 {
     }
 }
 
+/// Fills the one-cell holes a scan sparser than the grid leaves inside a surface: an empty
+/// cell between two measured cells on opposite sides (left and right, above and below, or
+/// diagonally) whose depths agree within `tolerance` takes their midpoint. Only the original
+/// measurements are read, so the result does not depend on the order; depth edges (the two
+/// sides disagree) and the scan's borders stay empty.
+fn fill_sampling_holes(
+    cols: usize,
+    near: &mut [f32],
+    background: &mut [bool],
+    normal: &mut [P3],
+    point: &mut [P3],
+    tolerance: f32,
+) {
+    let rows = near.len() / cols;
+    let measured = near.to_vec();
+    let opposite: [(i64, i64); 4] = [(1, 0), (0, 1), (1, 1), (1, -1)];
+    for r in 0..rows as i64 {
+        for c in 0..cols as i64 {
+            let k = r as usize * cols + c as usize;
+            if !measured[k].is_nan() {
+                continue;
+            }
+            let at = |dc: i64, dr: i64| -> Option<usize> {
+                let (cc, rr) = (c + dc, r + dr);
+                (cc >= 0 && rr >= 0 && (cc as usize) < cols && (rr as usize) < rows)
+                    .then(|| rr as usize * cols + cc as usize)
+                    .filter(|&j| !measured[j].is_nan())
+            };
+            let mut best: Option<(f32, usize, usize)> = None;
+            for (dc, dr) in opposite {
+                let (Some(a), Some(b)) = (at(dc, dr), at(-dc, -dr)) else {
+                    continue;
+                };
+                let gap = (measured[a] - measured[b]).abs();
+                if gap <= tolerance && best.is_none_or(|(g, _, _)| gap < g) {
+                    best = Some((gap, a, b));
+                }
+            }
+            let Some((_, a, b)) = best else { continue };
+            near[k] = 0.5 * (measured[a] + measured[b]);
+            background[k] = background[a] && background[b];
+            point[k] = std::array::from_fn(|i| 0.5 * (point[a][i] + point[b][i]));
+            let n: P3 = std::array::from_fn(|i| normal[a][i] + normal[b][i]);
+            let len = n.iter().map(|x| x * x).sum::<f32>().sqrt();
+            normal[k] = if len > 1e-6 {
+                n.map(|x| x / len)
+            } else {
+                normal[a]
+            };
+        }
+    }
+}
+
 impl RangeGrid {
     /// Projects the scene (`background[i]` marks belt/floor/wall points; `normals[i]`, when
     /// given, is point i's unit normal, NaN where undefined) into a grid.
@@ -407,6 +460,14 @@ impl RangeGrid {
                 normal[k] = normals.map_or([f32::NAN; 3], |n| n[i]);
             }
         }
+        fill_sampling_holes(
+            cols,
+            &mut near,
+            &mut bg,
+            &mut normal,
+            &mut point,
+            config.tolerance_mm as f32,
+        );
         Ok(Self {
             projector,
             col0: c0,
@@ -764,6 +825,66 @@ mod tests {
         });
         cells.dedup_by(|next, kept| next.col == kept.col && next.row == kept.row);
         cells
+    }
+
+    /// Points of the plane z = `z` over x in [0, 40) every 1 mm and y in `ys`.
+    fn rows(z: f32, ys: impl Iterator<Item = u32>) -> Vec<P3> {
+        ys.flat_map(|y| (0..40).map(move |x| [x as f32 + 0.5, y as f32 + 0.5, z]))
+            .collect()
+    }
+
+    #[test]
+    fn holes_between_scan_lines_are_filled_and_depth_edges_are_not() {
+        // Scan lines every 2 mm on a 1 mm grid: a flat tile (z = 0, y < 20) and a box top
+        // (z = 10, y >= 20); the empty row at y = 19 lies on the depth edge between them.
+        let points: Vec<P3> = rows(0.0, (0..20).step_by(2))
+            .into_iter()
+            .chain(rows(10.0, (20..40).step_by(2)))
+            .collect();
+        let up = [0.0f32, 0.0, 1.0];
+        let view = ViewConfig {
+            cell_mm: 1.0,
+            tolerance_mm: 1.5,
+            max_incidence_deg: 75.0,
+            max_normal_angle_deg: 45.0,
+        };
+        let grid = RangeGrid::new(
+            Sensor::orthographic([0.0, 0.0, 1.0]).unwrap(),
+            &view,
+            &points,
+            &vec![false; points.len()],
+            Some(&vec![up; points.len()]),
+        )
+        .unwrap();
+        let depth = |x: i64, y: i64| {
+            let (c, r, _) = grid
+                .projector
+                .project(&Point3::new(x as f64 + 0.5, y as f64 + 0.5, 0.0))
+                .unwrap();
+            let k = grid.cell_index(c.floor() as i64, r.floor() as i64).unwrap();
+            grid.near[k]
+        };
+        // Inside each surface the missing lines take the surface's depth ...
+        for (y, z) in [(1, 0.0), (17, 0.0), (21, 10.0), (37, 10.0)] {
+            for x in [0, 13, 39] {
+                assert_eq!(depth(x, y), depth(x, y - 1), "x {x} y {y}");
+                assert_eq!(depth(x, y) - depth(x, 0), z, "x {x} y {y}");
+            }
+        }
+        // ... the line on the depth edge stays empty.
+        assert!(depth(5, 19).is_nan());
+        // A tile modelled on the flat part is explained in every cell by its own.
+        let tile = OrientedPoints {
+            points: rows(0.0, 0..18),
+            normals: vec![up; 40 * 18],
+        };
+        let s = grid.score(&tile, &Isometry3::identity(), &view);
+        assert_eq!(s.explained, s.visible);
+        assert!(
+            (s.mean_fit() - 1.0).abs() < 1e-9,
+            "mean fit {}",
+            s.mean_fit()
+        );
     }
 
     #[test]
