@@ -157,6 +157,8 @@ pub struct RangeGrid {
     normal: Vec<[f32; 3]>,
     /// The nearest point in the cell.
     point: Vec<P3>,
+    /// Whether the cell was empty and took its neighbours' surface (`fill_sampling_holes`).
+    filled: Vec<bool>,
     max_normal_cos: f64,
     /// Depth tolerance, mm.
     tolerance_mm: f64,
@@ -311,7 +313,7 @@ fn ratio(a: u32, b: u32) -> f64 {
 /// cell between two measured cells on opposite sides (left and right, above and below, or
 /// diagonally) whose depths agree within `tolerance` takes their midpoint. Only the original
 /// measurements are read, so the result does not depend on the order; depth edges (the two
-/// sides disagree) and the scan's borders stay empty.
+/// sides disagree) and the scan's borders stay empty. Returns which cells were filled.
 fn fill_sampling_holes(
     cols: usize,
     near: &mut [f32],
@@ -319,9 +321,10 @@ fn fill_sampling_holes(
     normal: &mut [P3],
     point: &mut [P3],
     tolerance: f32,
-) {
+) -> Vec<bool> {
     let rows = near.len() / cols;
     let measured = near.to_vec();
+    let mut filled = vec![false; near.len()];
     let opposite: [(i64, i64); 4] = [(1, 0), (0, 1), (1, 1), (1, -1)];
     for r in 0..rows as i64 {
         for c in 0..cols as i64 {
@@ -346,6 +349,7 @@ fn fill_sampling_holes(
                 }
             }
             let Some((_, a, b)) = best else { continue };
+            filled[k] = true;
             near[k] = 0.5 * (measured[a] + measured[b]);
             background[k] = background[a] && background[b];
             point[k] = std::array::from_fn(|i| 0.5 * (point[a][i] + point[b][i]));
@@ -358,6 +362,7 @@ fn fill_sampling_holes(
             };
         }
     }
+    filled
 }
 
 impl RangeGrid {
@@ -460,7 +465,7 @@ impl RangeGrid {
                 normal[k] = normals.map_or([f32::NAN; 3], |n| n[i]);
             }
         }
-        fill_sampling_holes(
+        let filled = fill_sampling_holes(
             cols,
             &mut near,
             &mut bg,
@@ -478,6 +483,7 @@ impl RangeGrid {
             background: bg,
             normal,
             point,
+            filled,
             max_normal_cos: config.max_normal_angle_deg.to_radians().cos(),
             tolerance_mm: config.tolerance_mm,
         })
@@ -666,12 +672,15 @@ impl RangeGrid {
                 s.outline_edges += 1;
                 let t = tol + cell.slack;
                 // Checked beyond the gap: the sampled outline lies up to a cell inside the
-                // part's true edge, and ICP leaves a cell of slack.
+                // part's true edge, and ICP leaves a cell of slack. Only measured cells
+                // count: a part standing on a surface meets it at its own depth, and filling
+                // the scan's holes there would make its outline look continued.
                 let beyond = [OUTLINE_GAP + 1, OUTLINE_GAP + 2]
                     .map(|k| self.cell_index(cell.col + k * dc, cell.row + k * dr));
                 let carries = beyond.iter().all(|i| {
                     i.is_some_and(|i| {
                         !self.background[i]
+                            && !self.filled[i]
                             && (f64::from(self.near[i]) - cell.closeness).abs() <= t
                             && self.normal_agrees(i, &cell.normal)
                     })
