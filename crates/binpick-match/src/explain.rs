@@ -348,7 +348,7 @@ mod tests {
     use nalgebra::Isometry3;
 
     use super::*;
-    use crate::view::{RangeGrid, Sensor, ViewConfig};
+    use crate::view::{RangeGrid, ViewConfig};
     use crate::{OrientedPoints, P3};
 
     /// A flat square of `side` mm at height `z`, sampled every `step` mm, normals up.
@@ -402,21 +402,7 @@ mod tests {
             background.push(false);
         }
         let up = [0.0f32, 0.0, 1.0];
-        let normals = vec![up; points.len()];
-        let view = ViewConfig {
-            cell_mm: 1.0,
-            tolerance_mm: 1.5,
-            max_incidence_deg: 75.0,
-            max_normal_angle_deg: 45.0,
-        };
-        let grid = RangeGrid::new(
-            Sensor::orthographic([0.0, 0.0, 1.0]).unwrap(),
-            &view,
-            &points,
-            &background,
-            Some(&normals),
-        )
-        .unwrap();
+        let (grid, view) = crate::view::tests::top_view_grid(&points, &background);
         let part_points = square(0.0, 0.0, 20.0, 0.0, 1.0);
         let part = OrientedPoints {
             normals: vec![up; part_points.len()],

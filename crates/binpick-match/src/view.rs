@@ -820,8 +820,28 @@ fn to_point(p: &P3) -> Point3<f64> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
+
+    /// A 1 mm view grid of `points` (upward normals, `background[i]` marks support) seen by
+    /// a scanner looking down, with a 1.5 mm tolerance.
+    pub(crate) fn top_view_grid(points: &[P3], background: &[bool]) -> (RangeGrid, ViewConfig) {
+        let view = ViewConfig {
+            cell_mm: 1.0,
+            tolerance_mm: 1.5,
+            max_incidence_deg: 75.0,
+            max_normal_angle_deg: 45.0,
+        };
+        let grid = RangeGrid::new(
+            Sensor::orthographic([0.0, 0.0, 1.0]).unwrap(),
+            &view,
+            points,
+            background,
+            Some(&vec![[0.0, 0.0, 1.0]; points.len()]),
+        )
+        .unwrap();
+        (grid, view)
+    }
 
     /// The nearest per cell as first written: sorted by cell, then nearest first (stable),
     /// the first of each cell kept.
@@ -851,20 +871,7 @@ mod tests {
             .chain(rows(10.0, (20..40).step_by(2)))
             .collect();
         let up = [0.0f32, 0.0, 1.0];
-        let view = ViewConfig {
-            cell_mm: 1.0,
-            tolerance_mm: 1.5,
-            max_incidence_deg: 75.0,
-            max_normal_angle_deg: 45.0,
-        };
-        let grid = RangeGrid::new(
-            Sensor::orthographic([0.0, 0.0, 1.0]).unwrap(),
-            &view,
-            &points,
-            &vec![false; points.len()],
-            Some(&vec![up; points.len()]),
-        )
-        .unwrap();
+        let (grid, view) = top_view_grid(&points, &vec![false; points.len()]);
         let depth = |x: i64, y: i64| {
             let (c, r, _) = grid
                 .projector
