@@ -353,10 +353,13 @@ fn fill_sampling_holes(
             near[k] = 0.5 * (measured[a] + measured[b]);
             background[k] = background[a] && background[b];
             point[k] = std::array::from_fn(|i| 0.5 * (point[a][i] + point[b][i]));
+            // The mean direction; the known one where the other is unknown (NaN).
             let n: P3 = std::array::from_fn(|i| normal[a][i] + normal[b][i]);
             let len = n.iter().map(|x| x * x).sum::<f32>().sqrt();
             normal[k] = if len > 1e-6 {
                 n.map(|x| x / len)
+            } else if normal[a][0].is_nan() {
+                normal[b]
             } else {
                 normal[a]
             };
@@ -901,6 +904,29 @@ pub(crate) mod tests {
             "mean fit {}",
             s.mean_fit()
         );
+    }
+
+    #[test]
+    fn a_filled_hole_takes_the_known_normal_of_its_sides() {
+        // One row: measured, empty, measured; the left side's normal is unknown.
+        let up = [0.0f32, 0.0, 1.0];
+        let mut near = vec![5.0, f32::NAN, 5.5];
+        let mut background = vec![true, false, true];
+        let mut normal = vec![[f32::NAN; 3], [f32::NAN; 3], up];
+        let mut point = vec![[0.0, 0.0, 5.0], [f32::NAN; 3], [2.0, 0.0, 5.5]];
+        let filled =
+            fill_sampling_holes(3, &mut near, &mut background, &mut normal, &mut point, 1.0);
+        assert_eq!(filled, vec![false, true, false]);
+        assert_eq!(near[1], 5.25);
+        assert!(background[1]);
+        assert_eq!(normal[1], up);
+        assert_eq!(point[1], [1.0, 0.0, 5.25]);
+        // Beyond the tolerance the sides are a depth edge: nothing is filled.
+        let mut near = vec![5.0, f32::NAN, 7.0];
+        let filled =
+            fill_sampling_holes(3, &mut near, &mut background, &mut normal, &mut point, 1.0);
+        assert_eq!(filled, vec![false; 3]);
+        assert!(near[1].is_nan());
     }
 
     #[test]
