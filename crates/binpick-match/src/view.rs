@@ -162,6 +162,8 @@ pub struct RangeGrid {
     max_normal_cos: f64,
     /// Depth tolerance, mm.
     tolerance_mm: f64,
+    /// [`ViewConfig::support_band_mm`].
+    support_band_mm: f64,
 }
 
 /// How a hypothesis is compared with the range grid.
@@ -179,6 +181,11 @@ pub struct ViewConfig {
     /// A scene surface explains the model only where their normals differ by less than this,
     /// degrees (where the scene has a normal). Default 45, range 1-180 (180 = off).
     pub max_normal_angle_deg: f64,
+    /// Points within this distance of a support plane were labelled support, mm (range >= 0):
+    /// a background point explains a model surface as support ([`ViewScore::explained_by_support`])
+    /// only where that surface lies farther from it than this. Nearer, the part's own surface
+    /// would have been labelled support too (the flanks of a rod lying on the floor).
+    pub support_band_mm: f64,
 }
 
 impl ViewConfig {
@@ -195,6 +202,9 @@ impl ViewConfig {
                 "max_incidence_deg",
                 "expected 10-89 deg",
             ));
+        }
+        if !(self.support_band_mm.is_finite() && self.support_band_mm >= 0.0) {
+            return Err(MatchError::config("support_band_mm", "expected >= 0 mm"));
         }
         if !(1.0..=180.0).contains(&self.max_normal_angle_deg) {
             return Err(MatchError::config(
@@ -247,8 +257,9 @@ pub struct ViewScore {
     /// cannot sink into what carries it. Filled by the caller, which knows the planes.
     pub below_support: u32,
     pub support_checked: u32,
-    /// Explained cells whose best-fitting scene surface is background (belt, floor, wall):
-    /// a part laid on the support rather than seen.
+    /// Explained cells whose best-fitting scene surface is background (belt, floor, wall)
+    /// lying farther from the model than the support band: a part laid on the support
+    /// rather than seen.
     pub explained_by_support: u32,
 }
 
@@ -489,6 +500,7 @@ impl RangeGrid {
             filled,
             max_normal_cos: config.max_normal_angle_deg.to_radians().cos(),
             tolerance_mm: config.tolerance_mm,
+            support_band_mm: config.support_band_mm,
         })
     }
 
@@ -621,7 +633,8 @@ impl RangeGrid {
                             let fit = weight * (1.0 - (off_plane / tol).powi(2));
                             if best_fit.is_none_or(|b| fit > b) {
                                 best_fit = Some(fit);
-                                best_on_background = self.background[k];
+                                best_on_background =
+                                    self.background[k] && dz.abs() > self.support_band_mm;
                             }
                         } else {
                             wrong_normal = true;
@@ -834,6 +847,7 @@ pub(crate) mod tests {
             tolerance_mm: 1.5,
             max_incidence_deg: 75.0,
             max_normal_angle_deg: 45.0,
+            support_band_mm: 0.0,
         };
         let grid = RangeGrid::new(
             Sensor::orthographic([0.0, 0.0, 1.0]).unwrap(),
@@ -903,6 +917,55 @@ pub(crate) mod tests {
             (s.mean_fit() - 1.0).abs() < 1e-9,
             "mean fit {}",
             s.mean_fit()
+        );
+    }
+
+    #[test]
+    fn support_explains_a_model_surface_as_support_only_outside_its_band() {
+        // A belt (background) at z = 0 and a 20 mm square modelled 1 mm above it: the belt
+        // explains the square within the 1.5 mm tolerance.
+        let belt = rows(0.0, 0..40);
+        let square = OrientedPoints {
+            points: rows(1.0, 10..30)
+                .into_iter()
+                .filter(|p| p[0] < 20.0)
+                .collect(),
+            normals: vec![[0.0, 0.0, 1.0]; 20 * 20],
+        };
+        let (grid, view) = top_view_grid(&belt, &vec![true; belt.len()]);
+        let s = grid.score(&square, &Isometry3::identity(), &view);
+        assert_eq!(s.explained, 400);
+        assert_eq!(
+            s.explained_by_support, 400,
+            "no band: all of it is the belt's"
+        );
+        // Points within 2 mm of the belt's plane were labelled belt: a surface 1 mm above it
+        // would have been too, so the belt does not count against it.
+        let banded = ViewConfig {
+            support_band_mm: 2.0,
+            ..view.clone()
+        };
+        let grid = RangeGrid::new(
+            Sensor::orthographic([0.0, 0.0, 1.0]).unwrap(),
+            &banded,
+            &belt,
+            &vec![true; belt.len()],
+            Some(&vec![[0.0, 0.0, 1.0]; belt.len()]),
+        )
+        .unwrap();
+        let s = grid.score(&square, &Isometry3::identity(), &banded);
+        assert_eq!(s.explained, 400);
+        assert_eq!(s.explained_by_support, 0);
+        // A negative band is refused, naming the field.
+        let bad = ViewConfig {
+            support_band_mm: -1.0,
+            ..view
+        };
+        assert!(
+            bad.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("support_band_mm")
         );
     }
 

@@ -88,6 +88,7 @@ pub(crate) fn view_config(scale: &DerivedScale, cfg: &VerifyConfig) -> ViewConfi
         tolerance_mm: scale.tolerance_mm,
         max_incidence_deg: cfg.max_incidence_deg,
         max_normal_angle_deg: cfg.max_normal_angle_deg,
+        support_band_mm: scale.support_distance_mm,
     }
 }
 
