@@ -15,8 +15,8 @@
 //!   sensors behind one interface (scan a scene, scan one part alone, viewpoint);
 //! - [`models`]: model clouds (the top view of the isolated part in its canonical pose) and
 //!   ground truth (pose, visible fraction, pickable);
-//! - [`plan`] / [`generate`]: the presets `thesis-conveyor`, `thesis-arm` and `tiny` and the
-//!   dataset writer (layout in [`binpick_cloud::dataset`]);
+//! - [`plan`](mod@plan) / [`generate`](mod@generate): the presets `thesis-conveyor`,
+//!   `thesis-arm` and `tiny` and the dataset writer (layout in [`binpick_cloud::dataset`]);
 //! - [`generalisation`]: the generalisation benchmark (sets of the new families on belts, in
 //!   bins and under a depth camera, with BOP's visible fraction); [`bop`] writes its
 //!   depth-camera sets in BOP's format too.
