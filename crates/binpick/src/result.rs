@@ -649,7 +649,9 @@ pub struct VotingReport {
     pub votes: usize,
     /// Pose clusters verified.
     pub hypotheses: usize,
-    /// Candidates verified (hypotheses plus their near-symmetry variants).
+    /// Candidates that competed in the scene explanation (hypotheses plus their
+    /// near-symmetry variants). Later-round candidates refused before it, as confirmed
+    /// mostly by the support, are counted in `rejected_on_support` only.
     pub candidates: usize,
     /// Candidates taken as parts.
     pub accepted: usize,
