@@ -418,7 +418,7 @@ stage_config! {
         /// ... and rotate it less than this (up to symmetry) are one hypothesis, deg.
         cluster_rotation_deg: f64 = 24.0, within(1.0, 180.0, "deg");
         /// Strongest pose clusters verified, at most (per round).
-        hypotheses: usize = 60, count(1, 10_000, "");
+        hypotheses: usize = 40, count(1, 10_000, "");
         /// Voting rounds: each next round votes again over the scene samples that no part
         /// taken so far explains, so parts outvoted by their neighbours get hypotheses too.
         rounds: u32 = 2, count(1, 5, "");
