@@ -146,11 +146,12 @@ impl ViewCheck {
         self.visibility * (1.0 - self.on_support)
     }
 
-    /// What the pick order compares: [`own_visibility`](Self::own_visibility) less
-    /// `free_space_weight` times the share the sensor saw through (the scene explanation's
-    /// weighing of evidence against contradiction), at least 0.
+    /// What the pick order compares: [`own_visibility`](Self::own_visibility) weighted by
+    /// the mean [`fit`](Self::fit) of the confirmed surface, less `free_space_weight` times
+    /// the share the sensor saw through (the scene explanation's weighing of evidence
+    /// against contradiction), at least 0.
     pub fn pick_confidence(&self, free_space_weight: f64) -> f64 {
-        (self.own_visibility() - free_space_weight * self.free_space).max(0.0)
+        (self.own_visibility() * self.fit - free_space_weight * self.free_space).max(0.0)
     }
 }
 
