@@ -304,15 +304,12 @@ impl SceneVoting<'_> {
         offset: usize,
     ) -> Result<Vec<Candidate>> {
         // Interrupted, the candidates verified so far still compete for the scene (each
-        // taken part was verified against the view); the others are dropped.
-        let verified: Vec<Option<Candidate>> = hypotheses
-            .par_iter()
-            .enumerate()
-            .map(|(i, h)| {
-                let c = self.verify(verifier, accept, offset + i, h.votes, &h.pose);
-                self.deadline.partial(c)
-            })
-            .collect::<Result<_>>()?;
+        // taken part was verified against the view); the others are dropped. Hypotheses are
+        // taken up best voted first, so those verified so far are the likeliest parts.
+        let verified = in_order(hypotheses, |i, h| {
+            let c = self.verify(verifier, accept, offset + i, h.votes, &h.pose);
+            self.deadline.partial(c)
+        })?;
         let mut candidates: Vec<Candidate> = verified.into_iter().flatten().collect();
         if !self.params.verify.near_symmetry_variants || self.model.near_symmetries.is_empty() {
             return Ok(candidates);
@@ -331,16 +328,13 @@ impl SceneVoting<'_> {
                     .map(move |s| (k, c.pose * s))
             })
             .collect();
-        let variants: Vec<Option<Candidate>> = turned
-            .par_iter()
-            .map(|&(k, ref pose)| {
-                let c = &candidates[k];
-                self.deadline.partial(
-                    self.verify(verifier, accept, c.hypothesis, c.votes, pose)
-                        .map(|v| Candidate { turned: true, ..v }),
-                )
-            })
-            .collect::<Result<_>>()?;
+        let variants = in_order(&turned, |_, &(k, ref pose)| {
+            let c = &candidates[k];
+            self.deadline.partial(
+                self.verify(verifier, accept, c.hypothesis, c.votes, pose)
+                    .map(|v| Candidate { turned: true, ..v }),
+            )
+        })?;
         // Interrupted, a candidate and its turns compete only when all of them were
         // judged: a turn left alone would win without its rival (a half-turned twin
         // taken because the right pose was dropped). Incomplete families are dropped.
@@ -588,6 +582,23 @@ impl SceneVoting<'_> {
             grasps: Vec::new(),
         }
     }
+}
+
+/// `f` over `items` on the worker threads, which take them up in order (rayon's own split
+/// would start the second half at once, verifying weak hypotheses before strong ones when a
+/// time budget cuts the work short); results in the items' order, whatever the thread count.
+fn in_order<T: Sync, R: Send>(
+    items: &[T],
+    f: impl Fn(usize, &T) -> Result<R> + Sync,
+) -> Result<Vec<R>> {
+    let mut done: Vec<(usize, R)> = items
+        .iter()
+        .enumerate()
+        .par_bridge()
+        .map(|(i, x)| f(i, x).map(|r| (i, r)))
+        .collect::<Result<_>>()?;
+    done.sort_unstable_by_key(|(i, _)| *i);
+    Ok(done.into_iter().map(|(_, r)| r).collect())
 }
 
 /// The sensor, in words.
