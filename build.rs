@@ -92,6 +92,9 @@ fn configure(build: &mut cc::Build, sources: &[&str], include_dirs: &[std::path:
         .include(Path::new("cpp/include"))
         .std("c++17")
         .flag("-Wall")
+        // PCL's arithmetic as Debian compiled it: a float multiply-add never fused into one
+        // rounding (only possible where FMA is enabled), so counts reproduce PCL's exactly.
+        .flag("-ffp-contract=off")
         .flag_if_supported("-Wno-deprecated-declarations")
         // GCC 12 false positive inside Eigen (inlined aligned_free), not in our code.
         .flag_if_supported("-Wno-use-after-free");

@@ -277,6 +277,11 @@ pub(crate) mod bridge {
             max_iterations: u32,
             threads: u32,
         ) -> Result<PlaneFit>;
+        fn plane_inlier_counts(
+            xyz: &[f32],
+            planes: &[f32],
+            distance_threshold: f64,
+        ) -> Result<Vec<u64>>;
 
         fn match_features(
             source_features: &[f32],

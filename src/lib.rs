@@ -222,7 +222,8 @@ pub struct Plane {
 
 /// RANSAC plane fit (`pcl::SACSegmentation`, optimised coefficients, fixed seed). `Ok(None)`
 /// when PCL finds no plane. `threads` (0 = all cores) split RANSAC's inlier counts on large
-/// clouds; the plane does not depend on it.
+/// clouds (counted by the bridge over contiguous copies of the points, with PCL's float
+/// arithmetic, [`plane_inlier_counts`]); the plane does not depend on it.
 pub fn segment_plane(
     points: &[Point],
     distance_threshold: f32,
@@ -236,6 +237,23 @@ pub fn segment_plane(
         coefficients: fit.coefficients,
         inliers: fit.inliers,
     }))
+}
+
+/// For each plane `[a, b, c, d]`, the points within `distance_threshold` of it as counted by
+/// PCL's `SampleConsensusModelPlane::countWithinDistance` and by the split count
+/// [`segment_plane`] uses on large clouds: `(pcl, split)` per plane. For tests that the two
+/// agree exactly.
+#[doc(hidden)]
+pub fn plane_inlier_counts(
+    points: &[Point],
+    planes: &[[f32; 4]],
+    distance_threshold: f64,
+) -> Result<Vec<(u64, u64)>> {
+    init();
+    let counts =
+        bridge::plane_inlier_counts(flat(points), planes.as_flattened(), distance_threshold)
+            .map_err(pcl_err("SampleConsensusModelPlane"))?;
+    Ok(counts.chunks_exact(2).map(|c| (c[0], c[1])).collect())
 }
 
 /// For every source descriptor, its nearest target descriptor

@@ -544,6 +544,42 @@ fn plane_fit_is_the_same_on_any_number_of_threads() {
     }
 }
 
+/// The split count that RANSAC's inner loop uses on large clouds is PCL's count exactly, down
+/// to the rounding of each distance: points placed within a few ulps of the threshold on
+/// both sides of 40 planes (summing the plane's terms in another order moves some of them
+/// across it: 10 of the first plane's 500).
+#[test]
+fn split_plane_count_is_pcls_count_to_the_last_point() {
+    let mut rng = Rng(0x5eed_f91a_4e01);
+    let threshold = 1.0;
+    let mut planes = Vec::new();
+    let mut pts = Vec::new();
+    for _ in 0..40 {
+        let n = Vector3::new(rng.next() - 0.5, rng.next() - 0.5, rng.next() - 0.5).normalize();
+        let d = (rng.next() - 0.5) * 400.0;
+        planes.push([n.x, n.y, n.z, d]);
+        for k in 0..500 {
+            // A point of the plane, moved off it by the threshold give or take a few ulps.
+            let q = Vector3::new(rng.next() * 300.0, rng.next() * 300.0, rng.next() * 300.0);
+            let on = q - n * (n.dot(&q) + d);
+            let off = threshold as f32 * (1.0 + (rng.next() - 0.5) * 4e-7);
+            let p = on + n * if k % 2 == 0 { off } else { -off };
+            pts.push([p.x, p.y, p.z]);
+        }
+    }
+    for _ in 0..5_000 {
+        pts.push([rng.next() * 300.0, rng.next() * 300.0, rng.next() * 300.0]);
+    }
+    let counts = binpick_pcl::plane_inlier_counts(&pts, &planes, threshold).unwrap();
+    assert_eq!(counts.len(), planes.len());
+    for (k, (pcl, split)) in counts.iter().enumerate() {
+        assert_eq!(pcl, split, "plane {k}");
+    }
+    // The boundary is really tested: about half of each plane's 500 points fall inside.
+    let inside: u64 = counts.iter().map(|c| c.0).sum();
+    assert!((4_000..16_000).contains(&inside), "{inside}");
+}
+
 #[test]
 fn normals_follow_the_viewpoint() {
     let pts = blob([0.0, 0.0, 0.0], 20);

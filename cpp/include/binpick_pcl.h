@@ -70,6 +70,9 @@ Clusters euclidean_clusters(const Cloud& cloud, float tolerance, std::uint32_t m
                             std::uint32_t max_size);
 PlaneFit segment_plane(rust::Slice<const float> xyz, float distance_threshold,
                        std::uint32_t max_iterations, std::uint32_t threads);
+rust::Vec<std::uint64_t> plane_inlier_counts(rust::Slice<const float> xyz,
+                                             rust::Slice<const float> planes,
+                                             double distance_threshold);
 
 // --- registration.cpp (pcl_registration) -------------------------------------------------
 rust::Vec<Correspondence> match_features(rust::Slice<const float> source_features,
