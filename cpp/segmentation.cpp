@@ -7,8 +7,8 @@
 
 
 #include <algorithm>
-#include <cmath>
 #include <atomic>
+#include <cmath>
 #include <functional>
 #include <limits>
 #include <numeric>
@@ -107,18 +107,16 @@ class ShardRunner {
 
 // pcl::SampleConsensusModelPlane whose inlier count, RANSAC's inner loop and most of a plane
 // fit's time, is split over threads: each thread counts one contiguous shard of the points,
-// and the integer counts add up to the whole model's count whatever the split. Shard bounds
-// are multiples of 4 so a PCL build that counts four points at a time (SSE/AVX) groups the
-// points as it would unsplit. Everything else (samples, model, refinement, final inliers) is
-// PCL's own.
+// and the integer counts add up to the whole model's count whatever the split. Everything
+// else (samples, model, refinement, final inliers) is PCL's own.
 //
 // The count is PCL 1.13's `countWithinDistanceStandard` (the path Debian's build takes: no
 // SSE4.1) with the same float arithmetic, over each shard's points copied once into
 // contiguous arrays. PCL's loop gathers every point through its index into a stack vector
 // and reads it back as one 16-byte load, a store-forwarding stall per point: about 9 ns a
 // point, 200 times per fit (measured on the 20-31 k points left after a belt's plane).
-// Bridge test `plane_fit_is_the_same_on_any_number_of_threads` compares against PCL's own
-// SACSegmentation bit for bit.
+// Bridge tests: `split_plane_count_is_pcls_count_to_the_last_point` (the counts) and
+// `plane_fit_is_the_same_on_any_number_of_threads` (whole fits against SACSegmentation).
 class ShardedPlaneModel : public pcl::SampleConsensusModelPlane<pcl::PointXYZ> {
  public:
   using Plane = pcl::SampleConsensusModelPlane<pcl::PointXYZ>;
@@ -190,16 +188,14 @@ constexpr std::size_t kMinPointsPerShard = 8000;
 
 }  // namespace
 
-// pcl::SACSegmentation, RANSAC plane with optimised coefficients (deterministic: PCL seeds
-// its generator with 12345). `found` is false when PCL finds no plane. With `threads` > 1
-// (0 = all cores) and a large cloud, the same fit runs as SACSegmentation::segment does
-// (PCL's RandomSampleConsensus, coefficient refinement and final selection on a
-// SampleConsensusModelPlane) with the inlier counts split over threads: same draws, same
-// counts, same plane (bridge test `plane_fit_is_the_same_on_any_number_of_threads`).
+// Inlier counts of each plane (a, b, c, d) by PCL's SampleConsensusModelPlane and by the
+// split model over two shards, interleaved: for the bridge test that they agree exactly.
 rust::Vec<std::uint64_t> plane_inlier_counts(rust::Slice<const float> xyz,
                                              rust::Slice<const float> planes,
                                              double distance_threshold) {
-  if (planes.size() % 4 != 0) fail("plane_inlier_counts: ", planes.size(), " plane values is not 4 per plane");
+  if (planes.size() % 4 != 0) {
+    fail("plane_inlier_counts: ", planes.size(), " plane values, not 4 per plane");
+  }
   const auto cloud = to_cloud(xyz, "plane_inlier_counts");
   pcl::Indices all(cloud->size());
   std::iota(all.begin(), all.end(), 0);
@@ -215,6 +211,12 @@ rust::Vec<std::uint64_t> plane_inlier_counts(rust::Slice<const float> xyz,
   return out;
 }
 
+// pcl::SACSegmentation, RANSAC plane with optimised coefficients (deterministic: PCL seeds
+// its generator with 12345). `found` is false when PCL finds no plane. With `threads` > 1
+// (0 = all cores) and a large cloud, the same fit runs as SACSegmentation::segment does
+// (PCL's RandomSampleConsensus, coefficient refinement and final selection on a
+// SampleConsensusModelPlane) with the inlier counts split over threads: same draws, same
+// counts, same plane (bridge test `plane_fit_is_the_same_on_any_number_of_threads`).
 PlaneFit segment_plane(rust::Slice<const float> xyz, float distance_threshold,
                        std::uint32_t max_iterations, std::uint32_t threads) {
   check_positive(distance_threshold, "plane distance threshold");
