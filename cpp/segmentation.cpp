@@ -127,8 +127,8 @@ class ShardedPlaneModel : public pcl::SampleConsensusModelPlane<pcl::PointXYZ> {
         shards_(threads) {
     const std::size_t n = indices.size();
     for (int s = 0; s < threads; ++s) {
-      const std::size_t begin = (n * s / threads) & ~std::size_t{3};
-      const std::size_t end = s + 1 == threads ? n : (n * (s + 1) / threads) & ~std::size_t{3};
+      const std::size_t begin = n * s / threads;
+      const std::size_t end = n * (s + 1) / threads;
       Shard& shard = shards_[s];
       for (std::size_t i = begin; i < end; ++i) {
         const auto& p = (*cloud)[indices[i]];
