@@ -183,7 +183,7 @@ class ShardedPlaneModel : public pcl::SampleConsensusModelPlane<pcl::PointXYZ> {
   std::vector<Shard> shards_;
 };
 
-// Below this many points a plane fit is not worth splitting over threads.
+// Below this many points a plane fit is not worth splitting over threads (one shard counts).
 constexpr std::size_t kMinPointsPerShard = 8000;
 
 }  // namespace
@@ -211,53 +211,23 @@ rust::Vec<std::uint64_t> plane_inlier_counts(rust::Slice<const float> xyz,
   return out;
 }
 
-// pcl::SACSegmentation, RANSAC plane with optimised coefficients (deterministic: PCL seeds
-// its generator with 12345). `found` is false when PCL finds no plane. With `threads` > 1
-// (0 = all cores) and a large cloud, the same fit runs as SACSegmentation::segment does
-// (PCL's RandomSampleConsensus, coefficient refinement and final selection on a
-// SampleConsensusModelPlane) with the inlier counts split over threads: same draws, same
-// counts, same plane (bridge test `plane_fit_is_the_same_on_any_number_of_threads`).
-PlaneFit segment_plane(rust::Slice<const float> xyz, float distance_threshold,
-                       std::uint32_t max_iterations, std::uint32_t threads) {
+namespace {
+
+// A cloud for a plane fit of `max_iterations` RANSAC iterations, or an error naming what is
+// wrong.
+PointCloudXYZ::Ptr plane_fit_input(rust::Slice<const float> xyz, float distance_threshold,
+                                   std::uint32_t max_iterations) {
   check_positive(distance_threshold, "plane distance threshold");
   if (max_iterations == 0) fail("plane fit needs at least one RANSAC iteration");
   if (max_iterations > static_cast<std::uint32_t>(std::numeric_limits<int>::max() / 10)) {
     fail("plane fit: ", max_iterations, " RANSAC iterations is too many");
   }
-  const auto cloud = to_cloud(xyz, "segment_plane");
+  auto cloud = to_cloud(xyz, "segment_plane");
   if (cloud->size() < 3) fail("segment_plane: needs at least 3 points, got ", cloud->size());
-  const int shards = static_cast<int>(std::min<std::size_t>(
-      threads == 0 ? std::max(1u, std::thread::hardware_concurrency()) : threads,
-      cloud->size() / kMinPointsPerShard));
+  return cloud;
+}
 
-  pcl::PointIndices inliers;
-  pcl::ModelCoefficients coefficients;
-  if (shards < 2) {
-    pcl::SACSegmentation<pcl::PointXYZ> seg;
-    seg.setOptimizeCoefficients(true);
-    seg.setModelType(pcl::SACMODEL_PLANE);
-    seg.setMethodType(pcl::SAC_RANSAC);
-    seg.setDistanceThreshold(distance_threshold);
-    seg.setMaxIterations(static_cast<int>(max_iterations));
-    seg.setInputCloud(cloud);
-    seg.segment(inliers, coefficients);
-  } else {
-    pcl::Indices all(cloud->size());
-    std::iota(all.begin(), all.end(), 0);
-    auto model = std::make_shared<ShardedPlaneModel>(cloud, all, shards);
-    pcl::RandomSampleConsensus<pcl::PointXYZ> sac(model, distance_threshold);
-    sac.setMaxIterations(static_cast<int>(max_iterations));
-    const bool found = sac.computeModel(0);
-    if (model->interrupted()) throw_interrupted("support plane fit");
-    if (found) {
-      sac.getInliers(inliers.indices);
-      Eigen::VectorXf coeff(model->getModelSize()), refined(model->getModelSize());
-      sac.getModelCoefficients(coeff);
-      model->optimizeModelCoefficients(inliers.indices, coeff, refined);
-      coefficients.values.assign(refined.data(), refined.data() + refined.size());
-      model->selectWithinDistance(refined, distance_threshold, inliers.indices);
-    }
-  }
+PlaneFit plane_fit(const pcl::PointIndices& inliers, const pcl::ModelCoefficients& coefficients) {
   PlaneFit out;
   out.found = !inliers.indices.empty() && coefficients.values.size() == 4;
   if (out.found) {
@@ -265,6 +235,58 @@ PlaneFit segment_plane(rust::Slice<const float> xyz, float distance_threshold,
     for (auto i : inliers.indices) out.inliers.push_back(static_cast<std::uint32_t>(i));
   }
   return out;
+}
+
+}  // namespace
+
+// pcl::SACSegmentation, RANSAC plane with optimised coefficients (deterministic: PCL seeds
+// its generator with 12345), run as SACSegmentation::segment runs it (PCL's
+// RandomSampleConsensus, coefficient refinement and final selection on a
+// SampleConsensusModelPlane) with the inlier counts split over `threads` (0 = all cores) on
+// large clouds and counted without PCL's per-point stall (`ShardedPlaneModel`): same draws,
+// same counts, same plane as `segment_plane_pcl` (bridge test
+// `plane_fit_is_the_same_on_any_number_of_threads`). `found` is false when PCL finds no plane.
+PlaneFit segment_plane(rust::Slice<const float> xyz, float distance_threshold,
+                       std::uint32_t max_iterations, std::uint32_t threads) {
+  const auto cloud = plane_fit_input(xyz, distance_threshold, max_iterations);
+  const int shards = static_cast<int>(std::clamp<std::size_t>(
+      cloud->size() / kMinPointsPerShard, 1,
+      threads == 0 ? std::max(1u, std::thread::hardware_concurrency()) : threads));
+  pcl::PointIndices inliers;
+  pcl::ModelCoefficients coefficients;
+  pcl::Indices all(cloud->size());
+  std::iota(all.begin(), all.end(), 0);
+  auto model = std::make_shared<ShardedPlaneModel>(cloud, all, shards);
+  pcl::RandomSampleConsensus<pcl::PointXYZ> sac(model, distance_threshold);
+  sac.setMaxIterations(static_cast<int>(max_iterations));
+  const bool found = sac.computeModel(0);
+  if (model->interrupted()) throw_interrupted("support plane fit");
+  if (found) {
+    sac.getInliers(inliers.indices);
+    Eigen::VectorXf coeff(model->getModelSize()), refined(model->getModelSize());
+    sac.getModelCoefficients(coeff);
+    model->optimizeModelCoefficients(inliers.indices, coeff, refined);
+    coefficients.values.assign(refined.data(), refined.data() + refined.size());
+    model->selectWithinDistance(refined, distance_threshold, inliers.indices);
+  }
+  return plane_fit(inliers, coefficients);
+}
+
+// The same fit by pcl::SACSegmentation itself, one thread: the bridge tests' reference.
+PlaneFit segment_plane_pcl(rust::Slice<const float> xyz, float distance_threshold,
+                           std::uint32_t max_iterations) {
+  const auto cloud = plane_fit_input(xyz, distance_threshold, max_iterations);
+  pcl::PointIndices inliers;
+  pcl::ModelCoefficients coefficients;
+  pcl::SACSegmentation<pcl::PointXYZ> seg;
+  seg.setOptimizeCoefficients(true);
+  seg.setModelType(pcl::SACMODEL_PLANE);
+  seg.setMethodType(pcl::SAC_RANSAC);
+  seg.setDistanceThreshold(distance_threshold);
+  seg.setMaxIterations(static_cast<int>(max_iterations));
+  seg.setInputCloud(cloud);
+  seg.segment(inliers, coefficients);
+  return plane_fit(inliers, coefficients);
 }
 
 }  // namespace binpick

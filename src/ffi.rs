@@ -277,6 +277,11 @@ pub(crate) mod bridge {
             max_iterations: u32,
             threads: u32,
         ) -> Result<PlaneFit>;
+        fn segment_plane_pcl(
+            xyz: &[f32],
+            distance_threshold: f32,
+            max_iterations: u32,
+        ) -> Result<PlaneFit>;
         fn plane_inlier_counts(
             xyz: &[f32],
             planes: &[f32],

@@ -221,9 +221,9 @@ pub struct Plane {
 }
 
 /// RANSAC plane fit (`pcl::SACSegmentation`, optimised coefficients, fixed seed). `Ok(None)`
-/// when PCL finds no plane. `threads` (0 = all cores) split RANSAC's inlier counts on large
-/// clouds (counted by the bridge over contiguous copies of the points, with PCL's float
-/// arithmetic, [`plane_inlier_counts`]); the plane does not depend on it.
+/// when PCL finds no plane. RANSAC's inlier counts are split over `threads` (0 = all cores)
+/// on large clouds and counted by the bridge over contiguous copies of the points with PCL's
+/// float arithmetic ([`plane_inlier_counts`]); the plane is [`segment_plane_pcl`]'s.
 pub fn segment_plane(
     points: &[Point],
     distance_threshold: f32,
@@ -233,10 +233,28 @@ pub fn segment_plane(
     init();
     let fit = bridge::segment_plane(flat(points), distance_threshold, max_iterations, threads)
         .map_err(pcl_err("SACSegmentation"))?;
-    Ok(fit.found.then_some(Plane {
+    Ok(plane(fit))
+}
+
+/// The same fit by `pcl::SACSegmentation::segment` itself on one thread: the reference the
+/// bridge tests hold [`segment_plane`] to.
+#[doc(hidden)]
+pub fn segment_plane_pcl(
+    points: &[Point],
+    distance_threshold: f32,
+    max_iterations: u32,
+) -> Result<Option<Plane>> {
+    init();
+    let fit = bridge::segment_plane_pcl(flat(points), distance_threshold, max_iterations)
+        .map_err(pcl_err("SACSegmentation"))?;
+    Ok(plane(fit))
+}
+
+fn plane(fit: bridge::PlaneFit) -> Option<Plane> {
+    fit.found.then_some(Plane {
         coefficients: fit.coefficients,
         inliers: fit.inliers,
-    }))
+    })
 }
 
 /// For each plane `[a, b, c, d]`, the points within `distance_threshold` of it as counted by

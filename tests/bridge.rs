@@ -513,11 +513,11 @@ fn plane_segmentation_removes_the_floor_and_keeps_objects() {
     assert!(n[2].abs() > 0.999, "floor normal is vertical: {n:?}");
 }
 
-/// Splitting RANSAC's inlier counts over threads must not change the fit: on a cloud large
-/// enough to be split, PCL's SACSegmentation (one thread) and the split fit (2, 3 threads and
-/// all cores) return the same plane bit for bit and the same inliers in the same order. Two
-/// noisy planes and uniform clutter of similar sizes make RANSAC use all its iterations and
-/// choose between close counts.
+/// Splitting and counting RANSAC's inliers in the bridge must not change the fit: PCL's own
+/// SACSegmentation and the bridge's fit on 1, 2, 3 threads and all cores return the same
+/// plane bit for bit and the same inliers in the same order, on a cloud large enough to be
+/// split and on one counted in a single shard. Two noisy planes and uniform clutter of
+/// similar sizes make RANSAC use all its iterations and choose between close counts.
 #[test]
 fn plane_fit_is_the_same_on_any_number_of_threads() {
     let mut rng = Rng(0xfeed_beef);
@@ -534,13 +534,24 @@ fn plane_fit_is_the_same_on_any_number_of_threads() {
         pts.push([rng.next() * 400.0, rng.next() * 300.0, rng.next() * 200.0]);
     }
     let key = |p: &binpick_pcl::Plane| (p.coefficients.map(f32::to_bits), p.inliers.clone());
-    let single = segment_plane(&pts, 1.0, 300, 1).unwrap().expect("a plane");
-    assert!(single.inliers.len() > 20_000, "{}", single.inliers.len());
-    for threads in [2, 3, 0] {
-        let split = segment_plane(&pts, 1.0, 300, threads)
+    // The same mix, 90 000 points (split over threads) and every 15th of them (one shard).
+    let small: Vec<Point> = pts.iter().step_by(15).copied().collect();
+    for (cloud, least) in [(&pts, 20_000), (&small, 1_200)] {
+        let pcl = binpick_pcl::segment_plane_pcl(cloud, 1.0, 300)
             .unwrap()
             .expect("a plane");
-        assert_eq!(key(&split), key(&single), "{threads} threads");
+        assert!(pcl.inliers.len() > least, "{}", pcl.inliers.len());
+        for threads in [1, 2, 3, 0] {
+            let split = segment_plane(cloud, 1.0, 300, threads)
+                .unwrap()
+                .expect("a plane");
+            assert_eq!(
+                key(&split),
+                key(&pcl),
+                "{} points, {threads} threads",
+                cloud.len()
+            );
+        }
     }
 }
 

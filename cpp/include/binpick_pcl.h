@@ -70,6 +70,8 @@ Clusters euclidean_clusters(const Cloud& cloud, float tolerance, std::uint32_t m
                             std::uint32_t max_size);
 PlaneFit segment_plane(rust::Slice<const float> xyz, float distance_threshold,
                        std::uint32_t max_iterations, std::uint32_t threads);
+PlaneFit segment_plane_pcl(rust::Slice<const float> xyz, float distance_threshold,
+                           std::uint32_t max_iterations);
 rust::Vec<std::uint64_t> plane_inlier_counts(rust::Slice<const float> xyz,
                                              rust::Slice<const float> planes,
                                              double distance_threshold);
