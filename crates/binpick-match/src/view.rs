@@ -162,8 +162,6 @@ pub struct RangeGrid {
     max_normal_cos: f64,
     /// Depth tolerance, mm.
     tolerance_mm: f64,
-    /// [`ViewConfig::support_band_mm`].
-    support_band_mm: f64,
 }
 
 /// How a hypothesis is compared with the range grid.
@@ -500,7 +498,6 @@ impl RangeGrid {
             filled,
             max_normal_cos: config.max_normal_angle_deg.to_radians().cos(),
             tolerance_mm: config.tolerance_mm,
-            support_band_mm: config.support_band_mm,
         })
     }
 
@@ -634,7 +631,7 @@ impl RangeGrid {
                             if best_fit.is_none_or(|b| fit > b) {
                                 best_fit = Some(fit);
                                 best_on_background =
-                                    self.background[k] && dz.abs() > self.support_band_mm;
+                                    self.background[k] && dz.abs() > config.support_band_mm;
                             }
                         } else {
                             wrong_normal = true;
@@ -945,14 +942,6 @@ pub(crate) mod tests {
             support_band_mm: 2.0,
             ..view.clone()
         };
-        let grid = RangeGrid::new(
-            Sensor::orthographic([0.0, 0.0, 1.0]).unwrap(),
-            &banded,
-            &belt,
-            &vec![true; belt.len()],
-            Some(&vec![[0.0, 0.0, 1.0]; belt.len()]),
-        )
-        .unwrap();
         let s = grid.score(&square, &Isometry3::identity(), &banded);
         assert_eq!(s.explained, 400);
         assert_eq!(s.explained_by_support, 0);
