@@ -487,6 +487,7 @@ mod tests {
                 iterations: 1,
                 fitness_mm2: None,
                 adopted: true,
+                unhidden: false,
                 error: None,
             },
             height_mm: 0.0,

@@ -714,9 +714,40 @@ impl RangeGrid {
         pose: &Isometry3<f64>,
         config: &ViewConfig,
     ) -> Vec<u32> {
+        self.model_points_in_view(model, pose, config, None)
+    }
+
+    /// [`Self::visible_model_points`] less those the scene hides: where the scene's surface
+    /// in the point's cell lies more than `margin_mm` nearer the sensor (a neighbour over
+    /// it). ICP would pair such points with the neighbour or with the part's own surface
+    /// beside it, and both pull the pose off the part.
+    pub fn unhidden_model_points(
+        &self,
+        model: &OrientedPoints,
+        pose: &Isometry3<f64>,
+        config: &ViewConfig,
+        margin_mm: f64,
+    ) -> Vec<u32> {
+        self.model_points_in_view(model, pose, config, Some(margin_mm))
+    }
+
+    fn model_points_in_view(
+        &self,
+        model: &OrientedPoints,
+        pose: &Isometry3<f64>,
+        config: &ViewConfig,
+        hidden_margin_mm: Option<f64>,
+    ) -> Vec<u32> {
         let cos_limit = config.max_incidence_deg.to_radians().cos();
         let mut facing = Vec::new();
         let rendered = self.render(model, pose, cos_limit, Some(&mut facing));
+        let hidden = |f: &FacingPoint| {
+            hidden_margin_mm.is_some_and(|margin| {
+                self.cell_index(f.col, f.row)
+                    .map(|k| f64::from(self.near[k]))
+                    .is_some_and(|near| near - f.closeness > margin)
+            })
+        };
         facing
             .into_iter()
             .filter(|f| match rendered.get(f.col, f.row) {
@@ -724,6 +755,7 @@ impl RangeGrid {
                 // Steeper than the rendering limit but facing the sensor: keep it.
                 None => true,
             })
+            .filter(|f| !hidden(f))
             .map(|f| f.index)
             .collect()
     }
@@ -955,6 +987,42 @@ pub(crate) mod tests {
                 .unwrap_err()
                 .to_string()
                 .contains("support_band_mm")
+        );
+    }
+
+    #[test]
+    fn model_points_under_a_nearer_surface_are_hidden_beyond_the_margin_only() {
+        // A 40 x 40 mm tile at z = 0; over its rows y < 10 lies a plate 5 mm higher, over
+        // rows 10-19 a skin 1 mm higher (noise, or the tile itself a little off); rows
+        // 20-39 are the tile's own surface.
+        let scene: Vec<P3> = rows(5.0, 0..10)
+            .into_iter()
+            .chain(rows(1.0, 10..20))
+            .chain(rows(0.0, 20..40))
+            .collect();
+        let (grid, view) = top_view_grid(&scene, &vec![false; scene.len()]);
+        let tile = OrientedPoints {
+            points: rows(0.0, 0..40),
+            normals: vec![[0.0, 0.0, 1.0]; 40 * 40],
+        };
+        let pose = Isometry3::identity();
+        let row_of = |i: &u32| i / 40;
+        let visible = grid.visible_model_points(&tile, &pose, &view);
+        assert_eq!(
+            visible.len(),
+            1600,
+            "the model alone hides nothing of itself"
+        );
+        let unhidden = grid.unhidden_model_points(&tile, &pose, &view, 1.5);
+        assert!(
+            unhidden.iter().all(|i| row_of(i) >= 10),
+            "under the plate: hidden"
+        );
+        assert_eq!(unhidden.len(), 1200, "within the margin: kept");
+        // A margin wider than the plate's height hides nothing.
+        assert_eq!(
+            grid.unhidden_model_points(&tile, &pose, &view, 6.0).len(),
+            1600
         );
     }
 

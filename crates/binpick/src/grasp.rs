@@ -395,6 +395,7 @@ mod tests {
                 iterations: 1,
                 fitness_mm2: Some(0.1),
                 adopted: true,
+                unhidden: false,
                 error: None,
             },
             height_mm: pose.translation.z,

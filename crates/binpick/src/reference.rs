@@ -231,6 +231,7 @@ fn convert(r: ReferenceResult, p: &Params) -> Result<ReferenceRun> {
                     .then(|| IcpReport::usable_fitness(d.icp_fitness))
                     .flatten(),
                 adopted: d.icp_adopted,
+                unhidden: false,
                 error,
             },
             height_mm: height_mm(&pose, &final_kp, p.ranking.up),

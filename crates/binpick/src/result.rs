@@ -400,6 +400,11 @@ pub struct IcpReport {
     pub fitness_mm2: Option<f64>,
     /// Whether the ICP pose scored better than the initial one and was adopted (step 3d).
     pub adopted: bool,
+    /// Whether a last pass on the model surface the scene does not hide fitted better and
+    /// was adopted (scene voting; `converged`, `iterations` and `fitness_mm2` are then that
+    /// pass's). Absent in results written before it existed: false.
+    #[serde(default)]
+    pub unhidden: bool,
     /// Set when PCL's ICP failed; the initial pose is kept.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
@@ -940,6 +945,7 @@ mod tests {
                 iterations: 7,
                 fitness_mm2: Some(0.2),
                 adopted: true,
+                unhidden: false,
                 error: None,
             },
             height_mm: 12.0,

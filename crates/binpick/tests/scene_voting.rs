@@ -7,7 +7,7 @@ use std::path::PathBuf;
 
 use binpick::{Params, PointCloud, Recognizer, Units, load_part, pose};
 use binpick_synth::{ModelLibrary, PartKind, generalisation_sets, generate::write_stl};
-use nalgebra::{Isometry3, Translation3, Vector3};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
 struct BeltScan {
     recognizer: Recognizer,
@@ -18,6 +18,8 @@ struct BeltScan {
     /// The bracket's half turn that swaps its 30 and 35 mm flanges (model frame).
     near_symmetry: Isometry3<f64>,
     diameter_mm: f64,
+    /// The part's STL, in `_dir`.
+    part_file: PathBuf,
     _dir: tempfile::TempDir,
 }
 
@@ -28,8 +30,14 @@ fn belt_scan(index: usize) -> BeltScan {
 
 /// Scan `index` of the generalisation benchmark's bracket set `set_name` (seed 1).
 fn bracket_scan(set_name: &str, index: usize) -> BeltScan {
-    let lib = ModelLibrary::build_for(&[PartKind::Bracket], false).unwrap();
-    let model = lib.model("bracket").unwrap();
+    set_scan(PartKind::Bracket, set_name, index, Params::default())
+}
+
+/// Scan `index` of the generalisation benchmark's set `set_name` of `kind` (seed 1), with a
+/// recognizer on `params`.
+fn set_scan(kind: PartKind, set_name: &str, index: usize, params: Params) -> BeltScan {
+    let lib = ModelLibrary::build_for(&[kind], false).unwrap();
+    let model = &lib.models[0];
     let set = generalisation_sets(Some(index + 1))
         .into_iter()
         .find(|s| s.name == set_name)
@@ -37,9 +45,8 @@ fn bracket_scan(set_name: &str, index: usize) -> BeltScan {
     let scan =
         binpick_synth::generalisation::make_set_scene(&lib, &[model], &set, 1, index).unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let stl: PathBuf = dir.path().join("bracket.stl");
+    let stl: PathBuf = dir.path().join("part.stl");
     write_stl(&stl, &model.mesh).unwrap();
-    let params = Params::default();
     let (part, _) = load_part(&stl, Units::Millimetres, &params).unwrap();
     let diameter_mm = part.size.diameter_mm;
     let instances = &scan.gt[0].instances;
@@ -62,8 +69,15 @@ fn bracket_scan(set_name: &str, index: usize) -> BeltScan {
         recognizer: Recognizer::with_part(part, params).unwrap(),
         scene: scan.scan.cloud,
         pickable,
-        near_symmetry: lib.parts.get(PartKind::Bracket).near_symmetries()[0],
+        near_symmetry: lib
+            .parts
+            .get(kind)
+            .near_symmetries()
+            .first()
+            .copied()
+            .unwrap_or_else(Isometry3::identity),
         diameter_mm,
+        part_file: stl,
         _dir: dir,
     }
 }
@@ -148,4 +162,65 @@ fn a_part_sunk_into_its_support_is_refused_and_true_poses_in_a_bin_are_not() {
         .unwrap();
     assert!(check.view.below_support > 0.3, "{check:#?}");
     assert!(check.refusal.is_some(), "{check:#?}");
+}
+
+#[test]
+fn a_part_under_its_neighbours_is_refined_on_the_surface_the_scene_does_not_hide() {
+    // A depth camera's bin of rings. ICP on all of a ring's visible model surface pairs the
+    // part the rings over it hide with them, or with its own surface beside them, and is
+    // pulled off the ring: its right pose then fails `min_fit`. Started 2 mm and up to 8 deg
+    // off each covered ring (a voted pose's error), the last pass on the surface the scene
+    // does not hide brings the poses in.
+    let on = set_scan(PartKind::Ring, "rings-bin-depth", 0, Params::default());
+    let mut params = Params::default();
+    params.verify.unhidden_pass = false;
+    let (part, _) = load_part(&on.part_file, Units::Millimetres, &params).unwrap();
+    let off = Recognizer::with_part(part, params).unwrap();
+    let min_fit = Params::default().verify.min_fit;
+    let starts: [(f64, f64, f64); 5] = [
+        (2.0, 0.0, 0.0),
+        (0.0, 2.0, 0.0),
+        (-2.0, 0.0, 5.0),
+        (0.0, -2.0, -5.0),
+        (1.5, 1.5, 8.0),
+    ];
+    let (mut fitting, mut error) = ([0; 2], [0.0; 2]);
+    let mut covered = 0;
+    for truth in &on.pickable {
+        for &(dx, dy, tilt_deg) in &starts {
+            let tilt = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), tilt_deg.to_radians());
+            let start = Translation3::new(dx, dy, 0.0) * truth * tilt;
+            let with = on
+                .recognizer
+                .check_pose(&on.scene, None, &start, true)
+                .unwrap();
+            if with.view.covered < 0.1 {
+                continue;
+            }
+            covered += 1;
+            let without = off.check_pose(&on.scene, None, &start, true).unwrap();
+            assert!(with.view.fit >= without.view.fit, "{with:#?}\n{without:#?}");
+            for (k, c) in [with, without].iter().enumerate() {
+                fitting[k] += usize::from(c.view.fit >= min_fit);
+                error[k] += pose::translation_error_mm(truth, &c.pose);
+            }
+        }
+    }
+    eprintln!(
+        "fitting {fitting:?} of {covered}; mean error {:.2} / {:.2} mm",
+        error[0] / f64::from(covered),
+        error[1] / f64::from(covered)
+    );
+    assert!(covered >= 20, "{covered} starts on covered rings");
+    // Measured: 27 of 30 starts fit with the pass, 16 without; mean error 0.92 and 1.69 mm.
+    assert!(
+        fitting[0] >= fitting[1] + 5,
+        "fitting poses {fitting:?} of {covered}"
+    );
+    assert!(
+        error[0] < 0.75 * error[1],
+        "mean error {:.2} against {:.2} mm",
+        error[0] / f64::from(covered),
+        error[1] / f64::from(covered)
+    );
 }

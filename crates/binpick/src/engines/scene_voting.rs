@@ -449,11 +449,42 @@ impl SceneVoting<'_> {
         let Some(out) = icp else {
             return Ok((*initial, icp_report(None, false), before));
         };
+        let stopped_hopeless = probed.is_some();
         let after = probed.unwrap_or_else(|| verifier.score(&refined));
-        if after.support(w) < before.support(w) {
-            return Ok((*initial, icp_report(Some(&out), false), before));
+        let (pose, report, score) = if after.support(w) < before.support(w) {
+            (*initial, icp_report(Some(&out), false), before)
+        } else {
+            (refined, icp_report(Some(&out), true), after)
+        };
+        if stopped_hopeless || !self.params.verify.unhidden_pass {
+            return Ok((pose, report, score));
         }
-        Ok((refined, icp_report(Some(&out), true), after))
+        Ok(self
+            .refine_unhidden(verifier, &pose, &score)?
+            .unwrap_or((pose, report, score)))
+    }
+
+    /// The last pass of [`Verifier::refine_unhidden`] from `pose` (scored `score`), when it
+    /// fits closer without explaining less.
+    fn refine_unhidden(
+        &self,
+        verifier: &Verifier,
+        pose: &Isometry3<f64>,
+        score: &ViewScore,
+    ) -> Result<Option<(Isometry3<f64>, IcpReport, ViewScore)>> {
+        let w = self.params.verify.free_space_weight;
+        let Some((unhidden, out)) = verifier.refine_unhidden(pose)? else {
+            return Ok(None);
+        };
+        let s = verifier.score(&unhidden);
+        let better = s.mean_fit() > score.mean_fit() && s.support(w) >= score.support(w);
+        Ok(better.then(|| {
+            let report = IcpReport {
+                unhidden: true,
+                ..icp_report(Some(&out), true)
+            };
+            (unhidden, report, s)
+        }))
     }
 
     /// The greedy scene explanation over `candidates`: a near-tie between different poses
@@ -624,6 +655,7 @@ fn icp_report(icp: Option<&binpick_pcl::IcpOutcome>, adopted: bool) -> IcpReport
         iterations: icp.map_or(0, |o| o.iterations),
         fitness_mm2: icp.and_then(|o| IcpReport::usable_fitness(o.fitness)),
         adopted,
+        unhidden: false,
         error: None,
     }
 }

@@ -90,6 +90,7 @@ pub(crate) fn final_alignment(
             iterations: 0,
             fitness_mm2: None,
             adopted: false,
+            unhidden: false,
             error: None,
         },
     };

@@ -246,6 +246,7 @@ mod tests {
                 iterations: 3,
                 fitness_mm2: Some(0.1),
                 adopted: true,
+                unhidden: false,
                 error: None,
             },
             height_mm: height,

@@ -182,6 +182,11 @@ impl<'a> Verifier<'a> {
         let idx = self
             .grid
             .visible_model_points(&self.model.dense, pose, &self.view);
+        self.strided(&idx, max)
+    }
+
+    /// At most `max` of the model points `idx`, evenly strided.
+    fn strided(&self, idx: &[u32], max: usize) -> Vec<Point> {
         let step = idx.len().div_ceil(max.max(1)).max(1);
         idx.iter()
             .step_by(step)
@@ -234,6 +239,26 @@ impl<'a> Verifier<'a> {
             last = Some(out);
         }
         Ok((pose, last))
+    }
+
+    /// One fine ICP pass (correspondences within two tolerances) on the visible surface less
+    /// what the scene hides by more than a tolerance: a part under its neighbours is
+    /// otherwise pulled towards them. Meant for a pose already refined: from farther off,
+    /// the part's own surface would look hidden. None when too little is left to align.
+    pub(crate) fn refine_unhidden(
+        &self,
+        pose: &Isometry3<f64>,
+    ) -> Result<Option<(Isometry3<f64>, binpick_pcl::IcpOutcome)>> {
+        let tolerance = self.scale.tolerance_mm;
+        let idx = self
+            .grid
+            .unhidden_model_points(&self.model.dense, pose, &self.view, tolerance);
+        let src = self.strided(&idx, ICP_POINTS);
+        if src.len() < 10 {
+            return Ok(None);
+        }
+        let out = self.icp(&src, pose, 2.0 * tolerance, self.cfg.refine_iterations)?;
+        Ok(out.pose().map(|p| (p, out)))
     }
 
     /// PCL's ICP of the model points `src` onto the scene from `pose`.
