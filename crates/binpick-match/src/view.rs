@@ -248,7 +248,9 @@ pub struct ViewScore {
     /// explanation.
     pub explained_cells: Vec<u32>,
     pub explained_fit: Vec<f32>,
-    /// The occluded cells whose occluder is not background (a part lies on this one).
+    /// The occluded cells whose occluder is not background (a part lies on this one), off
+    /// the outline: on its edge cells a neighbour that only touches the part, or a pose a
+    /// cell off, puts nearer surface in front as well.
     pub covered: u32,
     /// Model points (of a fixed sample over the whole surface) that lie behind a support
     /// plane (belt, floor, bin wall) beyond the tolerance, and the points checked: a part
@@ -658,7 +660,7 @@ impl RangeGrid {
                 s.wrong_normal += 1;
             } else if front {
                 s.occluded += 1;
-                s.covered += u32::from(front_is_object);
+                s.covered += u32::from(front_is_object && !rendered.on_outline(c, r));
             } else if behind {
                 s.free_space += 1;
             } else if !any {
@@ -675,11 +677,8 @@ impl RangeGrid {
     fn outline(&self, rendered: &Rendering, s: &mut ViewScore) {
         let tol = self.tolerance_mm;
         for cell in &rendered.cells {
-            for (dc, dr) in [(1, 0), (-1, 0), (0, 1), (0, -1)] {
-                // The model is sampled at about one point per cell, so its rendering has
-                // holes of a cell or two (more on slanted faces): an edge of the outline
-                // has `OUTLINE_GAP` empty cells beyond it.
-                if (1..=OUTLINE_GAP).any(|k| rendered.has(cell.col + k * dc, cell.row + k * dr)) {
+            for (dc, dr) in SIDES {
+                if !rendered.is_edge(cell.col, cell.row, dc, dr) {
                     continue;
                 }
                 s.outline_edges += 1;
@@ -843,7 +842,22 @@ impl Rendering {
     fn has(&self, col: i64, row: i64) -> bool {
         self.get(col, row).is_some()
     }
+
+    /// Whether the side (`dc`, `dr`) of cell (`col`, `row`) is an edge of the outline. The
+    /// model is sampled at about one point per cell, so its rendering has holes of a cell
+    /// or two (more on slanted faces): an edge has `OUTLINE_GAP` empty cells beyond it.
+    fn is_edge(&self, col: i64, row: i64, dc: i64, dr: i64) -> bool {
+        !(1..=OUTLINE_GAP).any(|k| self.has(col + k * dc, row + k * dr))
+    }
+
+    /// Whether any side of cell (`col`, `row`) is an edge of the outline.
+    fn on_outline(&self, col: i64, row: i64) -> bool {
+        SIDES.iter().any(|&(dc, dr)| self.is_edge(col, row, dc, dr))
+    }
 }
+
+/// The four sides of a cell, (column, row) steps.
+const SIDES: [(i64, i64); 4] = [(1, 0), (-1, 0), (0, 1), (0, -1)];
 
 /// One cell of a rendered model: the nearest model surface in it.
 #[derive(Clone, Copy, Debug)]
@@ -1024,6 +1038,34 @@ pub(crate) mod tests {
             grid.unhidden_model_points(&tile, &pose, &view, 6.0).len(),
             1600
         );
+    }
+
+    #[test]
+    fn only_surface_over_the_inside_of_a_part_covers_it() {
+        // A 20 x 20 mm tile (x 0-19, y 10-29) lying in a 40 x 40 mm scene at z = 0.
+        let tile = OrientedPoints {
+            points: rows(0.0, 10..30)
+                .into_iter()
+                .filter(|p| p[0] < 20.0)
+                .collect(),
+            normals: vec![[0.0, 0.0, 1.0]; 20 * 20],
+        };
+        let covered_with = |over: &dyn Fn(&P3) -> bool| {
+            let scene: Vec<P3> = rows(0.0, 0..40)
+                .into_iter()
+                .map(|p| if over(&p) { [p[0], p[1], 5.0] } else { p })
+                .collect();
+            let (grid, view) = top_view_grid(&scene, &vec![false; scene.len()]);
+            let s = grid.score(&tile, &Isometry3::identity(), &view);
+            (s.covered, s.occluded)
+        };
+        // A neighbour 5 mm higher reaching two rows over the tile's edge (y 10 and 11): the
+        // row inside is explained by the tile's surface a cell away, the edge row is occluded
+        // but on the outline, so nothing covers the tile.
+        assert_eq!(covered_with(&|p| p[1] < 12.0), (0, 20));
+        // The same neighbour over the tile's middle covers it.
+        let (covered, _) = covered_with(&|p| (15.0..25.0).contains(&p[1]) && p[0] < 15.0);
+        assert!(covered >= 100, "covered {covered}");
     }
 
     #[test]

@@ -133,8 +133,8 @@ pub(crate) fn rank_detections(detections: &mut [Detection], band: f64) {
 }
 
 /// The scene-voting engine's pick order (thesis 4.2.2's occlusion band, extended with the
-/// view): parts nothing lies on come first (covered share of their visible surface at most
-/// `covered_max`); then higher confidence ([`ViewCheck::pick_confidence`]: the visible share
+/// view): parts nothing lies on come first (covered share of their visible surface, off the
+/// outline, at most `covered_max`); then higher confidence ([`ViewCheck::pick_confidence`]: the visible share
 /// confirmed by scene surface other than the support, since belt, floor and walls confirm a
 /// pose whether or not a part is there, weighted by how closely that surface fits, less
 /// `free_space_weight` times the share the sensor saw through), compared in bands of
