@@ -5,6 +5,9 @@
 //! ran out (`recognize`, `replay`: the parts verified before it are printed and written, and
 //! the JSON says where it stopped). Results go to stdout (and files); logs and progress bars
 //! go to stderr (`-v`, `-q`, `RUST_LOG`: see [`logging`]).
+// The argument structs' doc comments are clap's `--help` text, where `<name>` is a
+// placeholder to print as written, not an HTML tag.
+#![allow(rustdoc::invalid_html_tags)]
 
 mod bench;
 mod config;
