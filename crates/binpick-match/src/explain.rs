@@ -116,7 +116,7 @@ impl ExplainConfig {
             Some(Rejection::BelowSupport)
         } else if s.support_explained_ratio() > self.max_explained_by_support {
             Some(Rejection::OnSupport)
-        } else if s.mean_fit() < self.min_fit {
+        } else if s.mean_acceptance_fit() < self.min_fit {
             Some(Rejection::PoorFit)
         } else {
             None
@@ -455,6 +455,7 @@ mod tests {
             visible,
             explained: explained_cells.len() as u32,
             fit: f64::from(fit) * explained_cells.len() as f64,
+            acceptance_fit: f64::from(fit) * explained_cells.len() as f64,
             explained_fit: vec![fit; explained_cells.len()],
             explained_cells,
             ..ViewScore::default()

@@ -23,7 +23,7 @@ pub use explain::{ExplainConfig, Explanation, Rejection, explain_scene};
 pub use index::PointIndex;
 pub use poses::{PoseCluster, PoseClustering, Symmetries, cluster_poses};
 pub use ppf::{PpfConfig, PpfModel, Vote, VotingConfig};
-pub use view::{RangeGrid, Sensor, ViewConfig, ViewScore};
+pub use view::{NEIGHBOUR_FIT_WEIGHT, RangeGrid, Sensor, ViewConfig, ViewScore};
 
 /// One point `[x, y, z]`, mm.
 pub type P3 = [f32; 3];

@@ -23,6 +23,10 @@ use crate::{MatchError, OrientedPoints, P3};
 /// Empty cells beyond a rendered cell that make its side part of the model's outline.
 const OUTLINE_GAP: i64 = 3;
 
+/// Fit weight of a model cell explained only by a neighbouring cell's surface, off the
+/// outline: a cell of lateral slack, allowed but not worth a match in place.
+pub const NEIGHBOUR_FIT_WEIGHT: f64 = 0.25;
+
 /// Where the sensor is. "Closeness" below is a coordinate that grows towards the sensor, mm.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Sensor {
@@ -184,6 +188,11 @@ pub struct ViewConfig {
     /// only where that surface lies farther from it than this. Nearer, the part's own surface
     /// would have been labelled support too (the flanks of a rod lying on the floor).
     pub support_band_mm: f64,
+    /// A model cell on the outline explained only by a neighbouring cell's surface counts
+    /// at this fit weight (elsewhere a quarter, [`NEIGHBOUR_FIT_WEIGHT`]): the sampled outline
+    /// lies up to a cell inside the part's edge, so there the scan's surface falls in the
+    /// cell or beside it about as often. Range 0-1.
+    pub outline_neighbour_weight: f64,
 }
 
 impl ViewConfig {
@@ -203,6 +212,12 @@ impl ViewConfig {
         }
         if !(self.support_band_mm.is_finite() && self.support_band_mm >= 0.0) {
             return Err(MatchError::config("support_band_mm", "expected >= 0 mm"));
+        }
+        if !(0.0..=1.0).contains(&self.outline_neighbour_weight) {
+            return Err(MatchError::config(
+                "outline_neighbour_weight",
+                "expected 0-1",
+            ));
         }
         if !(1.0..=180.0).contains(&self.max_normal_angle_deg) {
             return Err(MatchError::config(
@@ -234,6 +249,11 @@ pub struct ViewScore {
     /// explained only by a neighbour counts a quarter): how well, not only how much, the
     /// scene confirms the model.
     pub fit: f64,
+    /// The same sum with a neighbour's explanation on the outline at
+    /// [`ViewConfig::outline_neighbour_weight`]: what acceptance (`min_fit`) reads. The
+    /// competition and the pick order read `fit`, which prefers the pose that meets the
+    /// scan in place.
+    pub acceptance_fit: f64,
     /// Edges of the model's silhouette (cell sides between a rendered cell and an empty
     /// one), and those where the scene's surface carries on past the edge at the model's
     /// depth with the model's orientation (and is not belt or bin): a real part's outline
@@ -303,6 +323,15 @@ impl ViewScore {
             0.0
         } else {
             self.fit / f64::from(self.explained)
+        }
+    }
+
+    /// Mean of [`Self::acceptance_fit`] over the explained cells.
+    pub fn mean_acceptance_fit(&self) -> f64 {
+        if self.explained == 0 {
+            0.0
+        } else {
+            self.acceptance_fit / f64::from(self.explained)
         }
     }
 
@@ -610,6 +639,8 @@ impl RangeGrid {
             let mut best_on_background = false;
             let (mut wrong_normal, mut front, mut behind, mut any) = (false, false, false, false);
             let mut front_is_object = false;
+            let mut on_outline: Option<bool> = None;
+            let mut best_acceptance_fit = 0.0f64;
             for dr in -1..=1 {
                 for dc in -1..=1 {
                     let Some(k) = self.cell_index(c + dc, r + dr) else {
@@ -628,8 +659,19 @@ impl RangeGrid {
                         .abs();
                     if dz.abs() <= t + cell.slack && off_plane <= tol {
                         if self.normal_agrees(k, &cell.normal) {
-                            let weight = if dr == 0 && dc == 0 { 1.0 } else { 0.25 };
-                            let fit = weight * (1.0 - (off_plane / tol).powi(2));
+                            let closeness = 1.0 - (off_plane / tol).powi(2);
+                            let in_place = dr == 0 && dc == 0;
+                            let weight = if in_place { 1.0 } else { NEIGHBOUR_FIT_WEIGHT };
+                            let acceptance_weight = if in_place {
+                                1.0
+                            } else if *on_outline.get_or_insert_with(|| rendered.on_outline(c, r)) {
+                                config.outline_neighbour_weight
+                            } else {
+                                NEIGHBOUR_FIT_WEIGHT
+                            };
+                            best_acceptance_fit =
+                                best_acceptance_fit.max(acceptance_weight * closeness);
+                            let fit = weight * closeness;
                             if best_fit.is_none_or(|b| fit > b) {
                                 best_fit = Some(fit);
                                 best_on_background =
@@ -652,6 +694,7 @@ impl RangeGrid {
                 s.explained += 1;
                 s.explained_by_support += u32::from(best_on_background);
                 s.fit += fit;
+                s.acceptance_fit += best_acceptance_fit;
                 if let Some(k) = self.cell_index(c, r) {
                     s.explained_cells.push(k as u32);
                     s.explained_fit.push(fit as f32);
@@ -660,7 +703,8 @@ impl RangeGrid {
                 s.wrong_normal += 1;
             } else if front {
                 s.occluded += 1;
-                s.covered += u32::from(front_is_object && !rendered.on_outline(c, r));
+                let on_outline = on_outline.unwrap_or_else(|| rendered.on_outline(c, r));
+                s.covered += u32::from(front_is_object && !on_outline);
             } else if behind {
                 s.free_space += 1;
             } else if !any {
@@ -891,6 +935,7 @@ pub(crate) mod tests {
             max_incidence_deg: 75.0,
             max_normal_angle_deg: 45.0,
             support_band_mm: 0.0,
+            outline_neighbour_weight: NEIGHBOUR_FIT_WEIGHT,
         };
         let grid = RangeGrid::new(
             Sensor::orthographic([0.0, 0.0, 1.0]).unwrap(),
@@ -1037,6 +1082,64 @@ pub(crate) mod tests {
         assert_eq!(
             grid.unhidden_model_points(&tile, &pose, &view, 6.0).len(),
             1600
+        );
+    }
+
+    #[test]
+    fn a_neighbours_surface_weighs_more_on_the_outline_than_inside_for_acceptance() {
+        // A model strip two cells wide (y 10-11) over a scan of it one cell over (y 11-12),
+        // on a belt 20 mm lower: row 10, on the outline, is explained by row 11 beside it.
+        let strip = OrientedPoints {
+            points: rows(0.0, 10..12),
+            normals: vec![[0.0, 0.0, 1.0]; 80],
+        };
+        let scene: Vec<P3> = rows(-20.0, 0..40)
+            .into_iter()
+            .filter(|p| !(11.0..13.0).contains(&p[1]))
+            .chain(rows(0.0, 11..13))
+            .collect();
+        let (grid, view) = top_view_grid(&scene, &vec![false; scene.len()]);
+        let fit = |w: f64| {
+            let config = ViewConfig {
+                outline_neighbour_weight: w,
+                ..view.clone()
+            };
+            let s = grid.score(&strip, &Isometry3::identity(), &config);
+            assert_eq!(s.explained, 80);
+            // The competition's fit keeps the quarter weight.
+            assert!((s.mean_fit() - 0.625).abs() < 1e-9, "{}", s.mean_fit());
+            s.mean_acceptance_fit()
+        };
+        // Every cell of the strip is on its outline: half its cells count at the weight.
+        assert!((fit(0.25) - 0.625).abs() < 1e-9, "{}", fit(0.25));
+        assert!((fit(0.5) - 0.75).abs() < 1e-9, "{}", fit(0.5));
+        // A 20-cell-wide tile scanned one cell over: only its edge rows and columns are on
+        // the outline, so the weight moves its fit little.
+        let tile = OrientedPoints {
+            points: rows(0.0, 10..30),
+            normals: vec![[0.0, 0.0, 1.0]; 800],
+        };
+        let scene = rows(0.0, 11..31);
+        let (grid, view) = top_view_grid(&scene, &vec![false; scene.len()]);
+        let tile_fit = |w: f64| {
+            let config = ViewConfig {
+                outline_neighbour_weight: w,
+                ..view.clone()
+            };
+            grid.score(&tile, &Isometry3::identity(), &config)
+                .mean_fit()
+        };
+        assert!(tile_fit(0.5) - tile_fit(0.25) < 0.02);
+        // Out of range, the field is named.
+        let bad = ViewConfig {
+            outline_neighbour_weight: 1.5,
+            ..view
+        };
+        assert!(
+            bad.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("outline_neighbour_weight")
         );
     }
 

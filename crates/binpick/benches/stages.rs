@@ -182,6 +182,7 @@ fn stages(c: &mut Criterion) {
         max_incidence_deg: 75.0,
         max_normal_angle_deg: 45.0,
         support_band_mm: scale.support_distance_mm,
+        outline_neighbour_weight: Params::default().verify.outline_neighbour_weight,
     };
     let sensor = || Sensor::orthographic([0.0, 0.0, 1.0]).expect("sensor");
     let grid = RangeGrid::new(

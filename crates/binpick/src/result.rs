@@ -128,6 +128,10 @@ pub struct ViewCheck {
     /// Mean fit weight of the confirmed surface (1 = the scene lies exactly on the model).
     #[serde(default)]
     pub fit: f64,
+    /// The same with a neighbouring cell's surface on the outline weighted as in place
+    /// (`outline_neighbour_weight`): what `min_fit` judges. Absent in older results: 0.
+    #[serde(default)]
+    pub acceptance_fit: f64,
     /// Cells the model covers as the sensor would see it alone.
     pub visible_cells: u32,
     /// Share of the whole model surface lying behind a support plane (sunk into the belt,

@@ -466,6 +466,13 @@ stage_config! {
         /// quarter for a neighbouring cell, must reach this (the scene must lie on the model,
         /// not just near it).
         min_fit: f64 = 0.7, within(0.0, 1.0, "");
+        /// ... judged with a model cell on the part's outline that only a neighbouring
+        /// cell's surface explains weighing this much (a quarter elsewhere): the sampled
+        /// outline lies up to a cell inside the part's edge. A part standing on a 2 mm sheet
+        /// edge is nearly all outline; at a quarter its right pose fitted at 0.59-0.70. The
+        /// competition and the pick order keep the quarter (they prefer the pose that meets
+        /// the scan in place).
+        outline_neighbour_weight: f64 = 0.5, within(0.0, 1.0, "");
         /// A part must explain at least this share of the cells the model covers in its
         /// median view (it must be seen, not guessed). A part standing on its thinnest side
         /// shows little: a Z bracket on the 2 mm edge of its sheet shows about 4.5 % of its

@@ -89,6 +89,7 @@ pub(crate) fn view_config(scale: &DerivedScale, cfg: &VerifyConfig) -> ViewConfi
         max_incidence_deg: cfg.max_incidence_deg,
         max_normal_angle_deg: cfg.max_normal_angle_deg,
         support_band_mm: scale.support_distance_mm,
+        outline_neighbour_weight: cfg.outline_neighbour_weight,
     }
 }
 
@@ -382,6 +383,7 @@ pub(crate) fn view_check(s: &ViewScore) -> ViewCheck {
         missing: share(s.missing),
         continued: s.continued_ratio(),
         fit: s.mean_fit(),
+        acceptance_fit: s.mean_acceptance_fit(),
         visible_cells: s.visible,
         below_support: s.below_support_ratio(),
         on_support: s.support_explained_ratio(),
