@@ -961,6 +961,17 @@ pub(crate) mod tests {
         cells
     }
 
+    /// A 20 x 20 mm tile at z = `z` (x 0-19, y 10-29, 1 mm apart), facing up.
+    fn tile_20mm(z: f32) -> OrientedPoints {
+        OrientedPoints {
+            points: rows(z, 10..30)
+                .into_iter()
+                .filter(|p| p[0] < 20.0)
+                .collect(),
+            normals: vec![[0.0, 0.0, 1.0]; 20 * 20],
+        }
+    }
+
     /// Points of the plane z = `z` over x in [0, 40) every 1 mm and y in `ys`.
     fn rows(z: f32, ys: impl Iterator<Item = u32>) -> Vec<P3> {
         ys.flat_map(|y| (0..40).map(move |x| [x as f32 + 0.5, y as f32 + 0.5, z]))
@@ -1013,13 +1024,7 @@ pub(crate) mod tests {
         // A belt (background) at z = 0 and a 20 mm square modelled 1 mm above it: the belt
         // explains the square within the 1.5 mm tolerance.
         let belt = rows(0.0, 0..40);
-        let square = OrientedPoints {
-            points: rows(1.0, 10..30)
-                .into_iter()
-                .filter(|p| p[0] < 20.0)
-                .collect(),
-            normals: vec![[0.0, 0.0, 1.0]; 20 * 20],
-        };
+        let square = tile_20mm(1.0);
         let (grid, view) = top_view_grid(&belt, &vec![true; belt.len()]);
         let s = grid.score(&square, &Isometry3::identity(), &view);
         assert_eq!(s.explained, 400);
@@ -1127,7 +1132,7 @@ pub(crate) mod tests {
                 ..view.clone()
             };
             grid.score(&tile, &Isometry3::identity(), &config)
-                .mean_fit()
+                .mean_acceptance_fit()
         };
         assert!(tile_fit(0.5) - tile_fit(0.25) < 0.02);
         // Out of range, the field is named.
@@ -1146,13 +1151,7 @@ pub(crate) mod tests {
     #[test]
     fn only_surface_over_the_inside_of_a_part_covers_it() {
         // A 20 x 20 mm tile (x 0-19, y 10-29) lying in a 40 x 40 mm scene at z = 0.
-        let tile = OrientedPoints {
-            points: rows(0.0, 10..30)
-                .into_iter()
-                .filter(|p| p[0] < 20.0)
-                .collect(),
-            normals: vec![[0.0, 0.0, 1.0]; 20 * 20],
-        };
+        let tile = tile_20mm(0.0);
         let covered_with = |over: &dyn Fn(&P3) -> bool| {
             let scene: Vec<P3> = rows(0.0, 0..40)
                 .into_iter()
