@@ -41,6 +41,139 @@ pub struct Args {
     /// call returned. With `--time-budget-ms`, that budget is used instead (library engines).
     #[arg(long, value_name = "F")]
     pub budget_fraction: Option<f64>,
+    /// Budgets per stage for the summary that says which stages are over, ms, as
+    /// `preprocess,initial,final,ranking,total` (initial = voting and final = verification
+    /// for the scene-voting engine). Default: the 0.25 s whole-process target of a belt scan
+    /// split by stage (see `StageBudgets`).
+    #[arg(long, value_name = "MS,MS,MS,MS,MS", value_parser = parse_stage_budgets)]
+    pub stage_budgets_ms: Option<StageBudgets>,
+}
+
+/// What one scan may spend per stage, ms (library time, loading excluded).
+#[derive(Serialize, Clone, Copy, Debug, PartialEq)]
+pub struct StageBudgets {
+    pub preprocess_ms: f64,
+    /// Scene voting: voting (normals, samples, votes); thesis engine: initial alignment.
+    pub initial_ms: f64,
+    /// Scene voting: verification; thesis engine: final alignment.
+    pub final_ms: f64,
+    pub ranking_ms: f64,
+    pub total_ms: f64,
+}
+
+impl Default for StageBudgets {
+    /// The target of 0.25 s per belt scan of about 470 k points, whole process on 2 cores,
+    /// less about 40 ms to read the binary PCD: 210 ms of library time, split as preprocessing
+    /// (voxel grid, support planes) 50, voting 70, verification 80, ranking 5, and 5 to spare.
+    fn default() -> Self {
+        Self {
+            preprocess_ms: 50.0,
+            initial_ms: 70.0,
+            final_ms: 80.0,
+            ranking_ms: 5.0,
+            total_ms: 210.0,
+        }
+    }
+}
+
+fn parse_stage_budgets(s: &str) -> std::result::Result<StageBudgets, String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f64>().map_err(|e| format!("{x:?}: {e}")))
+        .collect::<std::result::Result<_, _>>()?;
+    match v[..] {
+        [preprocess_ms, initial_ms, final_ms, ranking_ms, total_ms]
+            if v.iter().all(|x| x.is_finite() && *x > 0.0) =>
+        {
+            Ok(StageBudgets {
+                preprocess_ms,
+                initial_ms,
+                final_ms,
+                ranking_ms,
+                total_ms,
+            })
+        }
+        _ => Err(format!(
+            "expected five positive budgets in ms, preprocess,initial,final,ranking,total (got {s:?})"
+        )),
+    }
+}
+
+/// One stage against its budget, over the scenes the library engine timed.
+#[derive(Serialize, Debug, PartialEq)]
+pub struct StageBudgetRow {
+    pub stage: &'static str,
+    pub budget_ms: f64,
+    /// Median over the scenes of each scene's median, ms.
+    pub median_ms: f64,
+    /// The largest scene median, ms.
+    pub worst_ms: f64,
+    /// Scenes whose median is over the budget.
+    pub scenes_over: usize,
+    pub scenes: usize,
+}
+
+/// Each stage's scene medians against its budget (`thesis` names the thesis engine's
+/// stages, else the scene-voting engine's).
+pub fn stage_budget_rows(
+    scenes: &[&StageMedians],
+    budgets: &StageBudgets,
+    thesis: bool,
+) -> Vec<StageBudgetRow> {
+    let (initial, last) = if thesis {
+        ("initial alignment", "final alignment")
+    } else {
+        ("voting", "verification")
+    };
+    type Of = fn(&StageMedians) -> f64;
+    let stages: [(&'static str, f64, Of); 5] = [
+        ("preprocessing", budgets.preprocess_ms, |m| m.preprocess_ms),
+        (initial, budgets.initial_ms, |m| m.initial_alignment_ms),
+        (last, budgets.final_ms, |m| m.final_alignment_ms),
+        ("ranking", budgets.ranking_ms, |m| m.ranking_ms),
+        ("total", budgets.total_ms, |m| m.total_ms),
+    ];
+    stages
+        .into_iter()
+        .map(|(stage, budget_ms, of)| {
+            let v: Vec<f64> = scenes.iter().map(|m| of(m)).collect();
+            StageBudgetRow {
+                stage,
+                budget_ms,
+                median_ms: median_p95(&v).0,
+                worst_ms: v.iter().copied().fold(0.0, f64::max),
+                scenes_over: v.iter().filter(|&&x| x > budget_ms).count(),
+                scenes: v.len(),
+            }
+        })
+        .collect()
+}
+
+fn print_stage_budgets(rows: &[StageBudgetRow]) {
+    println!(
+        "\n{:<20} {:>10} {:>12} {:>12} {:>12} {:>14}",
+        "stage (budget)", "budget", "median", "worst scene", "scenes over", "median/budget"
+    );
+    for r in rows {
+        println!(
+            "{:<20} {:>10.0} {:>12.1} {:>12.1} {:>9}/{:<2} {:>13.2}x{}",
+            r.stage,
+            r.budget_ms,
+            r.median_ms,
+            r.worst_ms,
+            r.scenes_over,
+            r.scenes,
+            r.median_ms / r.budget_ms,
+            if r.median_ms > r.budget_ms {
+                "  over"
+            } else {
+                ""
+            }
+        );
+    }
+    println!(
+        "(ms of library time per scan, medians over the scenes of each scene's median; budgets: --stage-budgets-ms)"
+    );
 }
 
 /// Runs under a time budget on one scene: how long past it the calls returned.
@@ -112,6 +245,9 @@ struct BenchOutput {
     scenes: Vec<SceneBench>,
     comparisons: Vec<SceneComparison>,
     budgets: Vec<BudgetRuns>,
+    stage_budgets: StageBudgets,
+    /// The library engine's stages against `stage_budgets`.
+    stages_against_budget: Vec<StageBudgetRow>,
 }
 
 pub fn medians(runs: &[Timings]) -> StageMedians {
@@ -223,6 +359,8 @@ pub fn run(a: Args) -> Result<()> {
         scenes: Vec::new(),
         comparisons: Vec::new(),
         budgets: Vec::new(),
+        stage_budgets: a.stage_budgets_ms.unwrap_or_default(),
+        stages_against_budget: Vec::new(),
     };
     for scene_path in &a.scene {
         let (scene, seen_from) = load_scene(scene_path, params.units)?;
@@ -294,6 +432,17 @@ pub fn run(a: Args) -> Result<()> {
         "(ms, medians of {} runs; * = thesis engine: summed over the clusters' worker threads, scene voting: wall time of voting and of verification; 'total' is wall time; model preparation {prep_ms:.0} ms)",
         a.repeat.max(1)
     );
+    let library: Vec<&StageMedians> = out
+        .scenes
+        .iter()
+        .filter(|b| b.engine == "rust")
+        .map(|b| &b.median)
+        .collect();
+    if !library.is_empty() {
+        let thesis = params.stages().engine.name() != "scene-voting";
+        out.stages_against_budget = stage_budget_rows(&library, &out.stage_budgets, thesis);
+        print_stage_budgets(&out.stages_against_budget);
+    }
     if !out.comparisons.is_empty() {
         println!(
             "\n{:<40} {:>9} {:>18} {:>10} {:>12} {:>12}",
@@ -411,4 +560,56 @@ fn print_budgets(budgets: &[BudgetRuns]) {
     println!(
         "(ms; returned = call to return, wall clock; within = returned at most max(10 % of the budget, 50 ms) past it)"
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn stage(preprocess: f64, voting: f64, verification: f64) -> StageMedians {
+        StageMedians {
+            preprocess_ms: preprocess,
+            clustering_ms: 0.0,
+            initial_alignment_ms: voting,
+            final_alignment_ms: verification,
+            ranking_ms: 0.1,
+            total_ms: preprocess + voting + verification,
+            total_p95_ms: preprocess + voting + verification,
+        }
+    }
+
+    #[test]
+    fn each_stage_is_judged_against_its_own_budget() {
+        let scenes = [
+            stage(40.0, 100.0, 60.0),
+            stage(60.0, 50.0, 70.0),
+            stage(45.0, 90.0, 200.0),
+        ];
+        let refs: Vec<&StageMedians> = scenes.iter().collect();
+        let rows = stage_budget_rows(&refs, &StageBudgets::default(), false);
+        let row = |name: &str| rows.iter().find(|r| r.stage == name).unwrap();
+        assert_eq!(row("preprocessing").median_ms, 45.0);
+        assert_eq!(row("preprocessing").scenes_over, 1);
+        assert_eq!(row("voting").median_ms, 90.0);
+        assert_eq!(row("voting").scenes_over, 2);
+        assert_eq!(row("verification").worst_ms, 200.0);
+        assert_eq!(row("verification").scenes_over, 1);
+        assert_eq!(row("total").scenes_over, 1);
+        let thesis = stage_budget_rows(&refs, &StageBudgets::default(), true);
+        assert_eq!(thesis[1].stage, "initial alignment");
+    }
+
+    #[test]
+    fn stage_budgets_need_five_positive_numbers() {
+        let b = parse_stage_budgets("50, 70,80,5,210").unwrap();
+        assert_eq!(b, StageBudgets::default());
+        for bad in [
+            "50,70,80,5",
+            "50,70,80,5,210,1",
+            "50,70,-80,5,210",
+            "50,x,80,5,210",
+        ] {
+            assert!(parse_stage_budgets(bad).is_err(), "{bad}");
+        }
+    }
 }

@@ -206,7 +206,7 @@ fn stages(c: &mut Criterion) {
                         max_iterations: params.verify.refine_iterations,
                         transformation_epsilon: 1e-6 * res * res,
                         batch_correspondences: true,
-                        relative_mse: 1e-4,
+                        relative_mse: params.verify.refine_relative_mse,
                     },
                 )
                 .expect("icp")

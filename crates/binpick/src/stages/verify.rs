@@ -280,7 +280,7 @@ impl<'a> Verifier<'a> {
                     max_iterations: iterations,
                     transformation_epsilon: 1e-6 * w * w,
                     batch_correspondences: true,
-                    relative_mse: 1e-4,
+                    relative_mse: self.cfg.refine_relative_mse,
                 },
             )
             .map_err(pcl("refinement ICP"))
