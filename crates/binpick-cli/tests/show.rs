@@ -39,7 +39,15 @@ fn a_saved_result_is_drawn_again_and_a_moved_scene_is_named() {
     let model = repo().join("data/sample/models/A.pcd");
     let json = dir.path().join("result.json");
     let out = Command::new(env!("CARGO_BIN_EXE_binpick"))
-        .args(["recognize", "--engine", "thesis", "--preset", "A", "-q", "--model"])
+        .args([
+            "recognize",
+            "--engine",
+            "thesis",
+            "--preset",
+            "A",
+            "-q",
+            "--model",
+        ])
         .arg(&model)
         .arg("--scene")
         .arg(&scene)
@@ -48,7 +56,11 @@ fn a_saved_result_is_drawn_again_and_a_moved_scene_is_named() {
         .env_remove("RUST_LOG")
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let result: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     let found = result["detections"].as_array().unwrap().len();
@@ -64,7 +76,11 @@ fn a_saved_result_is_drawn_again_and_a_moved_scene_is_named() {
         Path::new("--ply"),
         &ply,
     ]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let image = std::fs::read(&png).unwrap();
     assert!(image.starts_with(b"\x89PNG\r\n\x1a\n"), "not a PNG");
     // The scene's points plus every placed model's.
@@ -95,7 +111,11 @@ fn a_saved_result_is_drawn_again_and_a_moved_scene_is_named() {
         Path::new("--scene"),
         &moved,
     ]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
 
     // Not a result at all: refused, naming the file.
     let bad = dir.path().join("bad.json");
@@ -103,5 +123,8 @@ fn a_saved_result_is_drawn_again_and_a_moved_scene_is_named() {
     let out = binpick(&[Path::new("show"), &bad]);
     assert!(!out.status.success());
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(stderr.contains("bad.json") && stderr.contains("rank 1"), "{stderr}");
+    assert!(
+        stderr.contains("bad.json") && stderr.contains("rank 1"),
+        "{stderr}"
+    );
 }
