@@ -2,19 +2,31 @@
 //! whose scene has moved is refused with a message saying how to point at it.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
+use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
 }
 
-fn binpick(args: &[&Path]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_binpick"))
+/// Runs binpick with `args`: whether it succeeded, and its stderr.
+fn binpick<S: AsRef<OsStr>>(args: &[S]) -> (bool, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_binpick"))
         .args(args)
         .env_remove("RUST_LOG")
         .output()
-        .unwrap()
+        .unwrap();
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// Runs binpick with `args`, which must succeed.
+fn binpick_ok<S: AsRef<OsStr>>(args: &[S]) {
+    let (ok, stderr) = binpick(args);
+    assert!(ok, "binpick failed:\n{stderr}");
 }
 
 /// The vertex count in a PLY header.
@@ -38,49 +50,33 @@ fn a_saved_result_is_drawn_again_and_a_moved_scene_is_named() {
     std::fs::copy(repo().join("data/sample/scenes/conveyor-A.pcd"), &scene).unwrap();
     let model = repo().join("data/sample/models/A.pcd");
     let json = dir.path().join("result.json");
-    let out = Command::new(env!("CARGO_BIN_EXE_binpick"))
-        .args([
-            "recognize",
-            "--engine",
-            "thesis",
-            "--preset",
-            "A",
-            "-q",
-            "--model",
-        ])
-        .arg(&model)
-        .arg("--scene")
-        .arg(&scene)
-        .arg("--json")
-        .arg(&json)
-        .env_remove("RUST_LOG")
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let (png, ply) = (dir.path().join("again.png"), dir.path().join("again.ply"));
+    let path = |p: &Path| p.as_os_str().to_owned();
+    binpick_ok(&[
+        "recognize".into(),
+        "--engine".into(),
+        "thesis".into(),
+        "--preset".into(),
+        "A".into(),
+        "-q".into(),
+        "--model".into(),
+        path(&model),
+        "--scene".into(),
+        path(&scene),
+        "--json".into(),
+        path(&json),
+    ]);
     let result: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     let found = result["detections"].as_array().unwrap().len();
     assert!(found > 0, "the sample scene has parts to draw");
 
-    let png = dir.path().join("again.png");
-    let ply = dir.path().join("again.ply");
-    let out = binpick(&[
-        Path::new("show"),
-        &json,
-        Path::new("--png"),
-        &png,
-        Path::new("--ply"),
-        &ply,
-    ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let show = |extra: &[&Path]| -> Vec<std::ffi::OsString> {
+        let mut args = vec!["show".into(), path(&json), "--png".into(), path(&png)];
+        args.extend(extra.iter().map(|p| path(p)));
+        args
+    };
+    binpick_ok(&show(&[Path::new("--ply"), &ply]));
     let image = std::fs::read(&png).unwrap();
     assert!(image.starts_with(b"\x89PNG\r\n\x1a\n"), "not a PNG");
     // The scene's points plus every placed model's.
@@ -96,35 +92,19 @@ fn a_saved_result_is_drawn_again_and_a_moved_scene_is_named() {
     // Moved: the result still names the old path; the error says so and how to fix it.
     let moved = dir.path().join("elsewhere.pcd");
     std::fs::rename(&scene, &moved).unwrap();
-    let out = binpick(&[Path::new("show"), &json, Path::new("--png"), &png]);
-    assert!(!out.status.success());
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    let (ok, stderr) = binpick(&show(&[]));
     assert!(
-        stderr.contains("conveyor-A.pcd") && stderr.contains("--scene"),
+        !ok && stderr.contains("conveyor-A.pcd") && stderr.contains("--scene"),
         "{stderr}"
     );
-    let out = binpick(&[
-        Path::new("show"),
-        &json,
-        Path::new("--png"),
-        &png,
-        Path::new("--scene"),
-        &moved,
-    ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    binpick_ok(&show(&[Path::new("--scene"), &moved]));
 
     // Not a result at all: refused, naming the file.
     let bad = dir.path().join("bad.json");
     std::fs::write(&bad, "{\"units\": \"mm\", \"detections\": [{\"rank\": 1}]}").unwrap();
-    let out = binpick(&[Path::new("show"), &bad]);
-    assert!(!out.status.success());
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    let (ok, stderr) = binpick(&["show".into(), path(&bad)]);
     assert!(
-        stderr.contains("bad.json") && stderr.contains("rank 1"),
+        !ok && stderr.contains("bad.json") && stderr.contains("rank 1"),
         "{stderr}"
     );
 }
