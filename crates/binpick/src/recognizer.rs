@@ -587,6 +587,37 @@ impl Recognizer {
         pose: &nalgebra::Isometry3<f64>,
         refine: bool,
     ) -> Result<crate::result::PoseCheck> {
+        let mut checks = self.check_poses(
+            scene,
+            sensor_position_mm,
+            std::slice::from_ref(pose),
+            refine,
+        )?;
+        Ok(checks.remove(0))
+    }
+
+    /// [`Recognizer::check_pose`] for several poses of one scene, in the order given: the
+    /// scene is preprocessed and its surface and view built once (most of a single check's
+    /// time), the poses judged in parallel. Each answer is the one `check_pose` gives alone.
+    pub fn check_poses(
+        &self,
+        scene: &PointCloud,
+        sensor_position_mm: Option<[f64; 3]>,
+        poses: &[nalgebra::Isometry3<f64>],
+        refine: bool,
+    ) -> Result<Vec<crate::result::PoseCheck>> {
+        if let Some(i) = poses.iter().position(|p| {
+            !(p.translation.vector.iter().all(|c| c.is_finite())
+                && p.rotation.coords.iter().all(|c| c.is_finite()))
+        }) {
+            return Err(crate::error::input(
+                "check_poses",
+                format!("pose {i} has a non-finite entry"),
+            ));
+        }
+        if poses.is_empty() {
+            return Ok(Vec::new());
+        }
         let p = self.stages_seen_from(&self.stages, sensor_position_mm);
         // Without a cancel token the lease always comes (after any queued calls).
         let Some(lease) = self.workers.lease(None)? else {
@@ -611,7 +642,7 @@ impl Recognizer {
                 threads,
                 support_planes: &prepared.planes,
             };
-            engine.check(&prepared.points, &prepared.support, pose, refine)
+            engine.check(&prepared.points, &prepared.support, poses, refine)
         })
     }
 

@@ -122,6 +122,47 @@ fn a_turned_near_symmetric_part_is_rejected() {
 }
 
 #[test]
+fn poses_checked_together_are_each_judged_as_when_checked_alone() {
+    let s = belt_scan(0);
+    let mut poses: Vec<Isometry3<f64>> = Vec::new();
+    for truth in &s.pickable {
+        poses.push(*truth);
+        poses.push(truth * s.near_symmetry);
+        poses.push(Translation3::new(0.2 * s.diameter_mm, 0.0, 0.0) * truth);
+    }
+    for refine in [false, true] {
+        let together = s
+            .recognizer
+            .check_poses(&s.scene, None, &poses, refine)
+            .unwrap();
+        assert_eq!(together.len(), poses.len());
+        for (pose, check) in poses.iter().zip(&together) {
+            let alone = s
+                .recognizer
+                .check_pose(&s.scene, None, pose, refine)
+                .unwrap();
+            assert_eq!(&alone, check, "refine {refine}");
+        }
+        // The set says something: right poses accepted, others refused.
+        assert!(together.iter().any(|c| c.refusal.is_none()));
+        assert!(together.iter().any(|c| c.refusal.is_some()));
+    }
+    assert!(
+        s.recognizer
+            .check_poses(&s.scene, None, &[], true)
+            .unwrap()
+            .is_empty()
+    );
+    let mut bad = poses[0];
+    bad.translation.vector.y = f64::NAN;
+    let e = s
+        .recognizer
+        .check_poses(&s.scene, None, &[poses[0], bad], true)
+        .unwrap_err();
+    assert!(e.to_string().contains("pose 1"), "{e}");
+}
+
+#[test]
 fn the_verifier_score_drops_as_a_pose_moves_off_its_part() {
     let s = belt_scan(0);
     let truth = s.pickable[0];

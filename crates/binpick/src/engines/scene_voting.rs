@@ -121,14 +121,15 @@ impl SceneVoting<'_> {
         Ok((sensor, surface))
     }
 
-    /// Judges one given pose against the scene, refined first when `refine`.
+    /// Judges given poses against the scene, each refined first when `refine`: the scene's
+    /// surface and view are built once for all of them. In the order given.
     pub(crate) fn check(
         &self,
         points: &[Point],
         support: &[bool],
-        pose: &Isometry3<f64>,
+        poses: &[Isometry3<f64>],
         refine: bool,
-    ) -> Result<PoseCheck> {
+    ) -> Result<Vec<PoseCheck>> {
         let (sensor, surface) = self.surface(points, support)?;
         let verifier = Verifier::new(
             sensor,
@@ -138,9 +139,23 @@ impl SceneVoting<'_> {
             &self.params.verify,
         )?;
         let accept = self.acceptance(&verifier);
+        poses
+            .par_iter()
+            .map(|pose| self.check_one(&verifier, &accept, pose, refine))
+            .collect()
+    }
+
+    /// [`SceneVoting::check`] of one pose.
+    fn check_one(
+        &self,
+        verifier: &Verifier,
+        accept: &ExplainConfig,
+        pose: &Isometry3<f64>,
+        refine: bool,
+    ) -> Result<PoseCheck> {
         let judge = |initial: &Isometry3<f64>| -> Result<(Isometry3<f64>, ViewScore)> {
             if refine {
-                let (pose, _, score) = self.refine_if_better(&verifier, &accept, initial)?;
+                let (pose, _, score) = self.refine_if_better(verifier, accept, initial)?;
                 Ok((pose, score))
             } else {
                 Ok((*initial, verifier.score(initial)))
@@ -163,7 +178,7 @@ impl SceneVoting<'_> {
             &votes,
             |_, _| false,
             &verifier.support_explained,
-            &accept,
+            accept,
         )
         .map_err(matching("scene explanation"))?;
         let refusal = match (explanation.rejected[0], explanation.taken.first()) {
