@@ -621,7 +621,7 @@ impl Recognizer {
         let p = self.stages_seen_from(&self.stages, sensor_position_mm);
         // Without a cancel token the lease always comes (after any queued calls).
         let Some(lease) = self.workers.lease(None)? else {
-            return Err(crate::error::input("check_pose", "cancelled while queued"));
+            return Err(crate::error::input("check_poses", "cancelled while queued"));
         };
         let deadline = Deadline::new(None, None);
         let threads = lease.threads();

@@ -110,7 +110,7 @@ pub enum FoundBy {
 
 /// A hypothesis judged against the sensor's view, as shares of the surface the sensor would
 /// see of the part alone in that pose (grid cells of the view).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[non_exhaustive]
 pub struct ViewCheck {
     /// Share confirmed by the scene: the estimated visible fraction.

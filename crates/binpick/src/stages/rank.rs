@@ -149,16 +149,8 @@ pub(crate) fn rank_by_view(
     let band = cfg.visibility_band;
     let key = |d: &Detection| {
         let v = d.view.unwrap_or(ViewCheck {
-            visibility: 0.0,
-            free_space: 0.0,
             covered: 1.0,
-            missing: 0.0,
-            continued: 0.0,
-            fit: 0.0,
-            acceptance_fit: 0.0,
-            visible_cells: 0,
-            below_support: 0.0,
-            on_support: 0.0,
+            ..ViewCheck::default()
         });
         let free = v.covered <= cfg.covered_max;
         let vis_band = if band > 0.0 {
@@ -301,14 +293,11 @@ mod tests {
         d.view = Some(ViewCheck {
             visibility,
             free_space,
-            covered: 0.0,
-            missing: 0.0,
-            continued: 0.0,
             fit: 0.9,
             acceptance_fit: 0.9,
             visible_cells: 1000,
-            below_support: 0.0,
             on_support,
+            ..ViewCheck::default()
         });
         d
     }
