@@ -24,8 +24,7 @@ pub const HOPELESS_SHARE: f64 = 0.5;
 pub struct ExplainConfig {
     /// Smallest share of its visible surface the scene must confirm. Range 0-1.
     pub min_visibility: f64,
-    /// Largest share of its visible surface the sensor may have seen through. Default 0.08,
-    /// range 0-1.
+    /// Largest share of its visible surface the sensor may have seen through. Range 0-1.
     pub max_free_space: f64,
     /// Largest share of its outline the scene's surface may carry on past where no taken
     /// part explains that surface (checked in the competition: a neighbouring part taken
@@ -34,6 +33,12 @@ pub struct ExplainConfig {
     /// Smallest mean fit weight of the confirmed surface (`ViewScore::fit` / `explained`):
     /// the scene must lie close to the model, not just within the tolerance. Range 0-1.
     pub min_fit: f64,
+    /// The mean fit asked of a part seen at `min_visibility`; from `occluded_below_visibility`
+    /// down to `min_visibility` the fit asked rises linearly from `min_fit` to this. Range
+    /// 0-1 (at or below `min_fit` = off).
+    pub occluded_min_fit: f64,
+    /// See `occluded_min_fit`. Range 0-1.
+    pub occluded_below_visibility: f64,
     /// Fewest confirmed grid cells (the part must be seen, not guessed). Range >= 1.
     pub min_explained_cells: u32,
     /// Largest share of the model's surface that may lie behind a support plane (the part
@@ -42,11 +47,11 @@ pub struct ExplainConfig {
     /// Largest share of its confirmed cells that the support (belt, floor, wall) may confirm:
     /// a part is seen by its own surface. Range 0-1.
     pub max_explained_by_support: f64,
-    /// Each free-space cell costs this many explained cells in the competition. Default 2,
-    /// range 0-100.
+    /// Each free-space cell costs this many explained cells in the competition. Range
+    /// 0-100.
     pub free_space_weight: f64,
     /// A hypothesis must explain at least this share of its confirmed cells that no taken
-    /// part explains yet. Default 0.5, range 0-1.
+    /// part explains yet. Range 0-1.
     pub min_new_share: f64,
     /// Gains within this share of the best are a tie. Between different poses it is won by
     /// the one with the most votes of its own (the view cannot tell a near-symmetric part
@@ -68,6 +73,15 @@ impl ExplainConfig {
         }
         if !unit(self.min_fit) {
             return Err(MatchError::config("min_fit", "expected 0-1"));
+        }
+        if !unit(self.occluded_min_fit) {
+            return Err(MatchError::config("occluded_min_fit", "expected 0-1"));
+        }
+        if !unit(self.occluded_below_visibility) {
+            return Err(MatchError::config(
+                "occluded_below_visibility",
+                "expected 0-1",
+            ));
         }
         if !unit(self.max_explained_by_support) {
             return Err(MatchError::config(
@@ -104,6 +118,19 @@ impl ExplainConfig {
             || s.visibility() < HOPELESS_SHARE * self.min_visibility
     }
 
+    /// The mean fit asked of a part that shows `visibility` of its visible surface: `min_fit`,
+    /// rising towards `occluded_min_fit` as less of the part is seen. With half a part
+    /// hidden, a wrong pose laid across a neighbour's surface confirms as much of itself as
+    /// a right one; only a close fit tells them apart.
+    pub fn fit_needed(&self, visibility: f64) -> f64 {
+        let span = self.occluded_below_visibility - self.min_visibility;
+        if span <= 0.0 || visibility >= self.occluded_below_visibility {
+            return self.min_fit;
+        }
+        let hidden = ((self.occluded_below_visibility - visibility) / span).min(1.0);
+        self.min_fit + (self.occluded_min_fit - self.min_fit).max(0.0) * hidden
+    }
+
     /// Why `s` cannot be accepted on its own, or None when it can.
     pub fn rejection(&self, s: &ViewScore) -> Option<Rejection> {
         if s.explained < self.min_explained_cells {
@@ -116,7 +143,7 @@ impl ExplainConfig {
             Some(Rejection::BelowSupport)
         } else if s.support_explained_ratio() > self.max_explained_by_support {
             Some(Rejection::OnSupport)
-        } else if s.mean_acceptance_fit() < self.min_fit {
+        } else if s.mean_acceptance_fit() < self.fit_needed(s.visibility()) {
             Some(Rejection::PoorFit)
         } else {
             None
@@ -365,6 +392,8 @@ mod tests {
             max_free_space: 0.1,
             max_continued: 0.2,
             min_fit: 0.5,
+            occluded_min_fit: 0.5,
+            occluded_below_visibility: 0.5,
             min_explained_cells: 10,
             max_below_support: 1.0,
             max_explained_by_support: 1.0,
@@ -460,6 +489,39 @@ mod tests {
             explained_cells,
             ..ViewScore::default()
         }
+    }
+
+    #[test]
+    fn a_part_seen_less_must_fit_closer() {
+        let config = ExplainConfig {
+            min_visibility: 0.45,
+            min_fit: 0.7,
+            occluded_min_fit: 0.85,
+            occluded_below_visibility: 0.6,
+            ..square_parts()
+        };
+        let close = |v: f64, want: f64| (config.fit_needed(v) - want).abs() < 1e-12;
+        assert!(close(0.9, 0.7) && close(0.6, 0.7), "seen well: min_fit");
+        assert!(close(0.525, 0.775), "half-way down: half the rise");
+        assert!(
+            close(0.45, 0.85) && close(0.3, 0.85),
+            "at min_visibility and below"
+        );
+        // 100 of 200 cells seen (0.5): a loose fit is refused, a close one taken; seen
+        // in full, the loose fit passes.
+        let half_loose = explaining(0..100, 0.75, 200);
+        let half_close = explaining(0..100, 0.85, 200);
+        let full_loose = explaining(0..100, 0.75, 100);
+        assert_eq!(config.rejection(&half_loose), Some(Rejection::PoorFit));
+        assert_eq!(config.rejection(&half_close), None);
+        assert_eq!(config.rejection(&full_loose), None);
+        // At or below min_fit the rule is off.
+        let off = ExplainConfig {
+            occluded_min_fit: 0.5,
+            ..config.clone()
+        };
+        assert_eq!(off.fit_needed(0.45), 0.7);
+        assert_eq!(off.rejection(&half_loose), None);
     }
 
     #[test]

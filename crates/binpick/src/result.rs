@@ -121,6 +121,14 @@ pub struct ViewCheck {
     pub covered: f64,
     /// Share with no measurement at all (shadow or absent surface).
     pub missing: f64,
+    /// Share with a nearer surface in front, whatever it is (`covered` counts only parts,
+    /// off the outline). Absent in older results: 0.
+    #[serde(default)]
+    pub occluded: f64,
+    /// Share where a scene surface lies at the model's depth but faces another way. Absent
+    /// in older results: 0.
+    #[serde(default)]
+    pub wrong_normal: f64,
     /// Share of its outline the scene's surface carries on past (a pose laid across other
     /// surfaces rather than on a part).
     #[serde(default)]

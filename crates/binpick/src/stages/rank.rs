@@ -306,13 +306,14 @@ mod tests {
     fn support_and_free_space_do_not_count_for_the_pick_order() {
         // 0: the highest and 94 % confirmed, but 44 % of that by the bin floor (a wrong pose
         // laid on the floor, measured on brackets-bin-depth-000); 1: 93 % by its own
-        // surface; 2: 97 %, a little of it floor; 3: higher still and 94 % confirmed, but
+        // surface; 2: 95 %, a little of it floor; 3: higher still and 94 % confirmed, but
         // the sensor saw through 5.7 % of it (a wrong pose over clutter, measured on
-        // mixed-bin-clutter-2mm-006). 1 and 2 share the 90-100 % band: the higher first.
+        // mixed-bin-clutter-2mm-006). At fit 0.9, 1 and 2 share the 80-85 % confidence band:
+        // the higher first.
         let mut d = vec![
             seen(0, 0.94, 0.44, 0.0, 17.0),
             seen(1, 0.93, 0.0, 0.0, 14.0),
-            seen(2, 0.97, 0.01, 0.0, 10.0),
+            seen(2, 0.95, 0.01, 0.0, 10.0),
             seen(3, 0.943, 0.0, 0.057, 30.0),
         ];
         rank_by_view(&mut d, &RankingConfig::default(), 2.0);
@@ -351,6 +352,37 @@ mod tests {
             "{}",
             d[1].rank_reason
         );
+    }
+
+    #[test]
+    fn a_right_part_a_neighbour_touches_goes_before_a_wrong_free_pose() {
+        // Measured on mixed-bin-clutter-2mm-007 (seed 1): the right plate, 4.3 % of it under
+        // a neighbour's edge, confidence 0.80, 5 mm high; a wrong plate pose standing on
+        // clutter, nothing over it, confidence 0.72, 61 mm high. At 3 % covered and bands of
+        // 0.1 the wrong pose was picked first.
+        let mut d = vec![
+            seen(0, 0.753, 0.0, 0.0, 60.8),
+            seen(1, 0.914, 0.0, 0.0, 5.4),
+        ];
+        for (x, (fit, covered)) in d.iter_mut().zip([(0.963, 0.0), (0.874, 0.043)]) {
+            let v = x.view.as_mut().unwrap();
+            v.fit = fit;
+            v.covered = covered;
+        }
+        rank_by_view(&mut d, &RankingConfig::default(), 2.0);
+        assert_eq!(d[0].found_order().0, 1, "{}", d[0].rank_reason);
+        assert!(
+            d[0].rank_reason.starts_with("free (4.3 %"),
+            "{}",
+            d[0].rank_reason
+        );
+        let old = RankingConfig {
+            covered_max: 0.03,
+            visibility_band: 0.1,
+            ..RankingConfig::default()
+        };
+        rank_by_view(&mut d, &old, 2.0);
+        assert_eq!(d[0].found_order().0, 0, "{}", d[0].rank_reason);
     }
 
     #[test]

@@ -381,6 +381,8 @@ pub(crate) fn view_check(s: &ViewScore) -> ViewCheck {
         free_space: share(s.free_space),
         covered: share(s.covered),
         missing: share(s.missing),
+        occluded: share(s.occluded),
+        wrong_normal: share(s.wrong_normal),
         continued: s.continued_ratio(),
         fit: s.mean_fit(),
         acceptance_fit: s.mean_acceptance_fit(),
