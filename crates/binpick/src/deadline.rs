@@ -73,8 +73,8 @@ impl Deadline {
         }
     }
 
-    /// No budget, no token: checks never fail (the reference engine's cleaning, tests).
-    #[cfg(any(test, feature = "reference"))]
+    /// No budget, no token: checks never fail (model preparation, the reference engine's
+    /// cleaning, tests).
     pub(crate) fn unlimited() -> Self {
         Self::new(None, None)
     }
