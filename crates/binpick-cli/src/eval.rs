@@ -249,6 +249,9 @@ struct SuiteRow {
     recall_pct: f64,
     /// Scans whose first pick is wrong while pickable parts were present, %.
     false_best_pct: f64,
+    /// Scans whose first pick is not a correct pose of a pickable part, pickable parts
+    /// present or not, %.
+    wrong_first_pick_pct: f64,
     /// Wrong detections per scan.
     false_positives_per_scan: f64,
     /// Scans with pickable parts and no correct detection, %.
@@ -263,6 +266,11 @@ impl SuiteRow {
         let p = run.table.percents();
         let (median, p95) = median_p95(&run.times_ms);
         let fp: usize = run.scenes.iter().map(|s| s.score.false_positives).sum();
+        let wrong_first = run
+            .scenes
+            .iter()
+            .filter(|s| s.score.wrong_first_pick)
+            .count();
         Self {
             set: set.dir.clone(),
             model: run.model.clone(),
@@ -270,6 +278,7 @@ impl SuiteRow {
             pickable: run.table.pickable,
             recall_pct: p.recognition,
             false_best_pct: p.false_best,
+            wrong_first_pick_pct: 100.0 * wrong_first as f64 / run.table.files.max(1) as f64,
             false_positives_per_scan: fp as f64 / run.table.files.max(1) as f64,
             starvation_pct: p.starvation,
             time_ms_median: median,
@@ -336,11 +345,11 @@ fn run_suite(a: &Args, sets: &[SuiteSet]) -> Result<()> {
     }
     print_suite(&rows, preset, a.model_file);
     let mut csv = String::from(
-        "set,model,scans,pickable,recall_pct,false_best_pct,false_positives_per_scan,starvation_pct,time_ms_median,time_ms_p95,failed_scenes\n",
+        "set,model,scans,pickable,recall_pct,false_best_pct,false_positives_per_scan,starvation_pct,time_ms_median,time_ms_p95,failed_scenes,wrong_first_pick_pct\n",
     );
     for r in &rows {
         csv.push_str(&format!(
-            "{},{},{},{},{:.1},{:.1},{:.2},{:.1},{:.0},{:.0},{}\n",
+            "{},{},{},{},{:.1},{:.1},{:.2},{:.1},{:.0},{:.0},{},{:.1}\n",
             r.set,
             r.model,
             r.scans,
@@ -351,7 +360,8 @@ fn run_suite(a: &Args, sets: &[SuiteSet]) -> Result<()> {
             r.starvation_pct,
             r.time_ms_median,
             r.time_ms_p95,
-            r.failed_scenes
+            r.failed_scenes,
+            r.wrong_first_pick_pct
         ));
     }
     crate::config::write_text(&out.join("suite.csv"), &csv)?;
@@ -375,17 +385,27 @@ fn print_suite(rows: &[SuiteRow], preset: &str, file: binpick_eval::ModelFile) {
     };
     println!("benchmark, preset {preset}, model file {file}");
     println!(
-        "{:<26} {:>5} {:>8} {:>8} {:>8} {:>9} {:>8} {:>10} {:>10}",
-        "set", "scans", "pickable", "R/P %", "FB/F %", "FP/scan", "S/F %", "median ms", "p95 ms"
+        "{:<26} {:>5} {:>8} {:>8} {:>8} {:>8} {:>9} {:>8} {:>10} {:>10}",
+        "set",
+        "scans",
+        "pickable",
+        "R/P %",
+        "FB/F %",
+        "WP/F %",
+        "FP/scan",
+        "S/F %",
+        "median ms",
+        "p95 ms"
     );
     for r in rows {
         println!(
-            "{:<26} {:>5} {:>8} {:>8.1} {:>8.0} {:>9.2} {:>8.0} {:>10.0} {:>10.0}",
+            "{:<26} {:>5} {:>8} {:>8.1} {:>8.0} {:>8.0} {:>9.2} {:>8.0} {:>10.0} {:>10.0}",
             r.set,
             r.scans,
             r.pickable,
             r.recall_pct,
             r.false_best_pct,
+            r.wrong_first_pick_pct,
             r.false_positives_per_scan,
             r.starvation_pct,
             r.time_ms_median,
@@ -395,12 +415,13 @@ fn print_suite(rows: &[SuiteRow], preset: &str, file: binpick_eval::ModelFile) {
     let n = rows.len().max(1) as f64;
     let mean = |f: fn(&SuiteRow) -> f64| rows.iter().map(f).sum::<f64>() / n;
     println!(
-        "{:<26} {:>5} {:>8} {:>8.1} {:>8.0} {:>9.2} {:>8.0}   (means over sets)",
+        "{:<26} {:>5} {:>8} {:>8.1} {:>8.0} {:>8.0} {:>9.2} {:>8.0}   (means over sets)",
         "all sets",
         rows.iter().map(|r| r.scans).sum::<usize>(),
         rows.iter().map(|r| r.pickable).sum::<usize>(),
         mean(|r| r.recall_pct),
         mean(|r| r.false_best_pct),
+        mean(|r| r.wrong_first_pick_pct),
         mean(|r| r.false_positives_per_scan),
         mean(|r| r.starvation_pct)
     );

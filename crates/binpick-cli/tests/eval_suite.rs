@@ -87,6 +87,16 @@ fn a_benchmark_root_gives_one_table_with_each_sets_own_figures() {
         assert_eq!(row["pickable"], summary["table"]["pickable"]);
         assert_eq!(row["recall_pct"], summary["percents"]["recognition"]);
         assert_eq!(row["false_best_pct"], summary["percents"]["false_best"]);
+        // Wrong first picks: the scans whose top detection is not a right pickable part,
+        // which includes every false best.
+        let scenes = summary["scenes"].as_array().unwrap();
+        let wrong = scenes
+            .iter()
+            .filter(|sc| sc["score"]["wrong_first_pick"] == true)
+            .count();
+        let wrong_pct = row["wrong_first_pick_pct"].as_f64().unwrap();
+        assert!((wrong_pct - 100.0 * wrong as f64 / scenes.len() as f64).abs() < 1e-9);
+        assert!(wrong_pct >= row["false_best_pct"].as_f64().unwrap());
         assert!(out.join(set).join("summary.json").is_file());
     }
     // Each set names its part: --model makes no sense here and is refused, by name.

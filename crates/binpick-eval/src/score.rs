@@ -76,6 +76,11 @@ pub struct SceneScore {
     pub detections: Vec<DetectionVerdict>,
     /// Top-ranked detection wrong or unpickable while pickable parts were present.
     pub false_best: bool,
+    /// A first pick was made and it is not a correct pose of a pickable part, whether or not
+    /// pickable parts were present: a right pick or none (`false_best` counts only scans
+    /// with pickable parts, as the thesis's table does). Absent in older summaries: false.
+    #[serde(default)]
+    pub wrong_first_pick: bool,
     /// Pickable parts present and no detection at all.
     pub starvation: bool,
 }
@@ -187,8 +192,9 @@ pub fn score_scene(
             error_mm: instance.map_or(closest, |i| errors[d][i]),
         });
     }
+    let top = score.detections.iter().min_by_key(|v| v.rank);
+    score.wrong_first_pick = top.is_some_and(|v| v.verdict != Verdict::Pickable);
     if score.pickable > 0 {
-        let top = score.detections.iter().min_by_key(|v| v.rank);
         match top {
             None => score.starvation = true,
             Some(v) => score.false_best = v.verdict != Verdict::Pickable,
@@ -434,5 +440,11 @@ mod tests {
         );
         assert!(!s.starvation && !s.false_best);
         assert_eq!(s.false_positives, 1);
+        // ... but a pick was made where none should be: a wrong first pick.
+        assert!(s.wrong_first_pick);
+        let none = score_scene(&pts, &[], 100.0, &truth[..1], &[], 0.1);
+        assert!(!none.wrong_first_pick, "no pick is not a wrong pick");
+        let right = score_scene(&pts, &[], 100.0, &truth, &[(1, at(300.0, 0.0, 0.0))], 0.1);
+        assert!(!right.wrong_first_pick && !right.false_best);
     }
 }
