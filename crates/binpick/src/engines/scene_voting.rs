@@ -43,10 +43,6 @@ use crate::stages::verify::{
 /// A scene sample is explained by a taken part within this many view tolerances of its
 /// surface (later voting rounds skip it).
 const UNEXPLAINED_TOLERANCES: f64 = 2.0;
-/// A candidate refused for free space is tried turned while it saw through at most this many
-/// times `max_free_space` (beyond, it lies over clutter, and its turns there are false
-/// detections: any share tried added 1.3 per scan on the plates belt set of seed 1).
-const TURN_MAX_FREE_SPACE: f64 = 2.0;
 
 /// What the engine found in the scene.
 pub(crate) struct VotingFound {
@@ -335,20 +331,8 @@ impl SceneVoting<'_> {
             return Ok(candidates);
         }
         let turns = self.model.near_symmetries.len();
-        // A part turned the wrong way round contradicts the scan where its turns differ: the
-        // scene lies beside that flange (a poor fit) or the sensor saw through it (free
-        // space, within twice what acceptance allows). Its turn is tried too.
         let acceptable: Vec<usize> = (0..candidates.len())
-            .filter(|&k| {
-                let s = &candidates[k].score;
-                match accept.rejection(s) {
-                    None | Some(Rejection::PoorFit) => true,
-                    Some(Rejection::FreeSpace) => {
-                        s.free_space_ratio() <= TURN_MAX_FREE_SPACE * accept.max_free_space
-                    }
-                    Some(_) => false,
-                }
-            })
+            .filter(|&k| accept.worth_turning(&candidates[k].score))
             .collect();
         let turned: Vec<(usize, Isometry3<f64>)> = acceptable
             .iter()
