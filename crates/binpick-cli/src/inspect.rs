@@ -44,6 +44,12 @@ pub fn run(a: InspectArgs) -> Result<()> {
         "view area      {:.0} mm^2 (one view of the part)",
         r.view_area_mm2
     );
+    match r.curvature_radius_mm {
+        Some(c) => println!(
+            "curvature      {c:.2} mm typical radius (the scene's normals are fitted over at most this)"
+        ),
+        None => println!("curvature      mostly flat"),
+    }
     println!(
         "declared       {} symmetries (identity included)",
         r.declared_symmetries

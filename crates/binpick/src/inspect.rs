@@ -90,6 +90,8 @@ pub struct PartInspection {
     pub spacing_mm: f64,
     /// Area of the surface one view shows, mm^2.
     pub view_area_mm2: f64,
+    /// Typical radius of curvature, mm (None: mostly flat); caps the scene's normal radius.
+    pub curvature_radius_mm: Option<f64>,
     /// Symmetries already declared in the sidecar (identity included).
     pub declared_symmetries: usize,
     /// Tolerance a symmetry's 99th-percentile gap met, mm.
@@ -253,6 +255,7 @@ pub fn inspect_part(part: &Part) -> Result<PartInspection> {
         diameter_mm,
         spacing_mm,
         view_area_mm2: part.size.view_area_mm2,
+        curvature_radius_mm: part.size.curvature_radius_mm,
         declared_symmetries: part.symmetries.transforms().len(),
         symmetry_tolerance_mm: tolerance,
         self_matches,

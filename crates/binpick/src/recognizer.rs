@@ -545,7 +545,10 @@ impl Recognizer {
             &cleaned,
             &pre,
             scale.connect_mm,
-            SupportSize::AreaMm2(scale.part_view_area_mm2),
+            SupportSize::Area {
+                view_area_mm2: scale.part_view_area_mm2,
+                curved: scale.part_curvature_radius_mm.is_some(),
+            },
             call.threads,
             call.deadline,
             preprocessed,

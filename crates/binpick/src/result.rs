@@ -542,6 +542,9 @@ pub struct DerivedScale {
     pub model_diameter_mm: f64,
     /// Area of the part one view shows, mm^2.
     pub part_view_area_mm2: f64,
+    /// The part's typical radius of curvature, mm; None when it is mostly flat.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub part_curvature_radius_mm: Option<f64>,
     /// Measured on the scan (None when the resolution was given).
     pub scan_spacing_mm: Option<f64>,
     /// Median distance of a scan point to its 8th-nearest neighbour, mm.
@@ -550,7 +553,9 @@ pub struct DerivedScale {
     pub resolution_mm: f64,
     /// Points closer than this are connected (one surface), mm.
     pub connect_mm: f64,
-    /// Points this close to a support plane are support, mm.
+    /// Points this close to a support plane are support, mm: the plane fit's distance, then
+    /// (scene voting with a curved part, once the noise is measured) the band narrowed to
+    /// 3 x the noise, at least one resolution (`SupportRemoval::band`).
     pub support_distance_mm: f64,
     /// Step between the model's and scene's voting samples, mm.
     pub sampling_step_mm: f64,

@@ -74,6 +74,15 @@ stage_config! {
         min_points_factor: f64 = 3.0, within(1.0, 1e6, "x model points");
         /// RANSAC iterations per plane fit.
         ransac_iterations: u32 = 200, count(1, 100_000, "");
+        /// Scene voting, a curved part (one with a typical radius of curvature): a plane's
+        /// point is support only within this many times the largest plane's measured noise
+        /// (RMS distance of its patch) when that is nearer than `distance_mm`; the rest of
+        /// the distance is the flanks of the parts lying on it (40 % of a 7 mm rod at 2 mm
+        /// spacing). A flat part lies flush and keeps the whole distance.
+        noise_sigmas: f64 = 3.0, within(1.0, 1000.0, "x plane RMS");
+        /// ... but never nearer than this many resolutions (a thinner band leaves the noise's
+        /// tail across the plane as stray points and separates nothing a voxel can).
+        min_band_resolutions: f64 = 1.0, within(0.0, 100.0, "x resolution");
     }
 }
 
@@ -122,6 +131,15 @@ impl SupportRemoval {
     /// The plane distance in effect, mm: the configured one, or 1.5 x `resolution_mm`.
     pub fn distance(&self, resolution_mm: f64) -> f64 {
         self.distance_mm.unwrap_or(1.5 * resolution_mm)
+    }
+
+    /// The support band once the scan's noise (`noise_mm`, RMS) is known, mm:
+    /// `noise_sigmas` x the noise, at least `min_band_resolutions` x `resolution_mm` and at
+    /// most the plane distance.
+    pub fn band(&self, resolution_mm: f64, noise_mm: f64) -> f64 {
+        (self.noise_sigmas * noise_mm)
+            .max(self.min_band_resolutions * resolution_mm)
+            .min(self.distance(resolution_mm))
     }
 }
 
@@ -401,6 +419,11 @@ stage_config! {
         normal_radius_steps: f64 = 0.75, within(0.1, 10.0, "x sampling step");
         /// ... but at least this many working resolutions (noise).
         min_normal_radius_resolutions: f64 = 3.0, within(1.0, 100.0, "x resolution");
+        /// A curved part's normals are fitted over at most this many of its typical radii of
+        /// curvature (wider, a rod's normals are those of a ridge) ...
+        normal_radius_curvatures: f64 = 1.0, within(0.1, 100.0, "x radius of curvature");
+        /// ... but over at least this many working resolutions.
+        min_curved_normal_radius_resolutions: f64 = 2.0, within(1.0, 100.0, "x resolution");
         /// Bins of each feature angle over 0-180 deg (Drost: 12 deg bins).
         feature_angle_bins: u32 = 15, count(4, 90, "");
         /// Bins of the rotation about the normal over a full turn.

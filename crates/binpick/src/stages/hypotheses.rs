@@ -246,6 +246,7 @@ mod tests {
         let part = PartSize {
             diameter_mm: 40.0,
             view_area_mm2: 400.0,
+            curvature_radius_mm: None,
         };
         let scale = DerivedScale::derive(&part, None, &Params::default()).unwrap();
         let above = [30.0, 30.0, 1e6];

@@ -12,7 +12,7 @@ use binpick_match::{OrientedPoints, Symmetries};
 use crate::error::{InputKind, Result, input_as, pcl};
 use crate::prepared::PreparedVoting;
 use crate::stages::model::diameter;
-use crate::stages::scale::{PartSize, measure_spacing};
+use crate::stages::scale::{PartSize, measure_curvature_radius, measure_spacing};
 
 /// Most points the diameter is measured on (exact over them, O(n^2)).
 const DIAMETER_POINTS: usize = 3000;
@@ -117,12 +117,14 @@ impl Part {
                 "all points coincide",
             ));
         }
+        let curvature_radius_mm = measure_curvature_radius(&surface, diameter_mm)?;
         Ok(Self {
             surface,
             cloud,
             size: PartSize {
                 diameter_mm,
                 view_area_mm2,
+                curvature_radius_mm,
             },
             symmetries: Symmetries::none(),
             source,

@@ -70,9 +70,18 @@ pub(crate) enum SupportSize {
     /// The model's point count at the resolution (the thesis engine; the C++ reference does
     /// the same).
     Points(usize),
-    /// The area one view of the part shows, mm^2: patches are measured by the area they
-    /// cover, so a bin wall the sensor sees at a grazing angle (few points) still counts.
-    AreaMm2(f64),
+    /// Scene voting. Patches are measured by the area they cover, so a bin wall the sensor
+    /// sees at a grazing angle (few points) still counts, and the largest plane's noise is
+    /// measured.
+    Area {
+        /// The area one view of the part shows, mm^2.
+        view_area_mm2: f64,
+        /// The part curves away from its support (a rod, a shaft): the flanks it rises on
+        /// lie within the plane's fit distance for a while, so only the noise's band
+        /// (`SupportRemoval::band`) is support. A flat part lies flush instead, and a band
+        /// edge through its lowest face would split that face: the whole distance stays.
+        curved: bool,
+    },
 }
 
 /// Per-axis minimum and maximum, mm.
@@ -338,11 +347,15 @@ fn find_support(
             (support.min_points_factor * n as f64).ceil().max(3.0) as usize,
             None,
         ),
-        SupportSize::AreaMm2(a) => (3, Some(support.min_points_factor * a)),
+        SupportSize::Area { view_area_mm2, .. } => {
+            (3, Some(support.min_points_factor * view_area_mm2))
+        }
     };
+    let curved = matches!(part, SupportSize::Area { curved: true, .. });
     let mut removed = vec![false; points.len()];
     // Indices still eligible for a plane fit.
     let mut candidates: Vec<u32> = (0..points.len() as u32).collect();
+    let mut band: Option<f64> = None;
     for _ in 0..support.max_planes {
         deadline.check("support plane fit")?;
         if candidates.len() < min_patch {
@@ -388,14 +401,25 @@ fn find_support(
                 )
             }
         };
-        let (mut taken, mut sq) = (0, 0.0f64);
         let c = plane.coefficients.map(f64::from);
-        for (k, big) in patches.into_iter().enumerate() {
-            if big {
+        let distance = |k: usize| {
+            let p = inlier_pts[k].map(f64::from);
+            (c[0] * p[0] + c[1] * p[1] + c[2] * p[2] + c[3]).abs()
+        };
+        let patch: Vec<usize> = (0..patches.len()).filter(|&k| patches[k]).collect();
+        let sq: f64 = patch.iter().map(|&k| distance(k).powi(2)).sum();
+        let rms_mm = (!patch.is_empty()).then(|| (sq / patch.len() as f64).sqrt());
+        // With the noise measured (scene voting) and a curved part, the band narrows to what
+        // the largest plane's noise needs (the scan's noise, as `DerivedScale::with_noise`
+        // takes it).
+        if let (true, Some(rms), None) = (curved, rms_mm, band) {
+            band = Some(support.band(resolution_mm, rms));
+        }
+        let mut taken = 0;
+        for &k in &patch {
+            if band.is_none_or(|b| distance(k) <= b) {
                 removed[candidates[plane.inliers[k] as usize] as usize] = true;
                 taken += 1;
-                let p = inlier_pts[k].map(f64::from);
-                sq += (c[0] * p[0] + c[1] * p[1] + c[2] * p[2] + c[3]).powi(2);
             }
         }
         deadline.check("support plane fit")?;
@@ -403,7 +427,7 @@ fn find_support(
             report.support_planes.push(RemovedPlane {
                 coefficients: plane.coefficients,
                 points: taken,
-                rms_mm: min_area.map(|_| (sq / taken as f64).sqrt()),
+                rms_mm: min_area.and(rms_mm),
             });
         }
         let mut is_inlier = vec![false; candidates.len()];
@@ -530,5 +554,98 @@ mod tests {
         }
         let big = large_patches(&pts, [0.0, 0.0, 1.0, 0.0], 1.5, PatchMin::Points(150));
         assert!(big[..200].iter().all(|&b| b));
+    }
+
+    /// A 200 x 200 mm floor at 1 mm spacing, noisy by up to +-0.3 mm (RMS about 0.17 mm),
+    /// and a rod of radius 3.5 mm lying on it along x, seen down to 0.5 mm above the floor.
+    /// Returns the points and how many are floor (first).
+    fn rod_on_a_noisy_floor() -> (Vec<Point>, usize) {
+        let mut pts = Vec::new();
+        let mut state = 0x2545_f491_u32;
+        for i in 0..200 {
+            for j in 0..200 {
+                state ^= state << 13;
+                state ^= state >> 17;
+                state ^= state << 5;
+                let noise = (state as f32 / u32::MAX as f32 - 0.5) * 0.6;
+                pts.push([i as f32, j as f32 - 100.0, noise]);
+            }
+        }
+        let floor = pts.len();
+        for i in 20..180 {
+            for k in 0..=20 {
+                let a = (-60.0 + 15.0 * k as f32).to_radians();
+                pts.push([i as f32, 3.5 * a.cos(), 3.5 + 3.5 * a.sin()]);
+            }
+        }
+        (pts, floor)
+    }
+
+    #[test]
+    fn under_a_curved_part_the_support_band_narrows_to_three_sigmas_or_a_resolution() {
+        let (pts, floor) = rod_on_a_noisy_floor();
+        let run = |resolution_mm, size| {
+            let mut cfg = PreprocessConfig {
+                resolution_mm: Some(resolution_mm),
+                ..PreprocessConfig::default()
+            };
+            cfg.support.distance_mm = Some(1.5);
+            cfg.support.max_planes = 1;
+            let mut report = PreprocessReport::default();
+            let support = find_support(
+                &pts,
+                &cfg,
+                1.5,
+                size,
+                2,
+                &Deadline::unlimited(),
+                &mut report,
+            )
+            .unwrap();
+            (support, report, cfg)
+        };
+        let rod_kept = |support: &[bool]| support[floor..].iter().filter(|&&s| !s).count();
+        let curved_rod = SupportSize::Area {
+            view_area_mm2: 1000.0,
+            curved: true,
+        };
+        // The thesis's path (the model's point count) labels the plane's whole 1.5 mm band.
+        let (thesis, _, _) = run(0.25, SupportSize::Points(1000));
+        for (p, &s) in pts[floor..].iter().zip(&thesis[floor..]) {
+            if (p[2] - 1.5).abs() > 0.1 {
+                assert_eq!(s, p[2] <= 1.5, "{p:?}");
+            }
+        }
+        // Scene voting measures the floor's noise and labels 3 sigmas (0.5 mm) at a fine
+        // resolution, one resolution at a coarse one: the rod's flanks above stay the rod's.
+        for (resolution, sigmas) in [(0.25, Some(3.0)), (1.0, None)] {
+            let (support, report, cfg) = run(resolution, curved_rod);
+            // The rod's lowest points within 1.5 mm of the floor count in its RMS too.
+            let rms = report.support_planes[0].rms_mm.unwrap();
+            assert!((0.17..0.21).contains(&rms), "{rms}");
+            let b = cfg.support.band(resolution, rms);
+            assert_eq!(b, sigmas.map_or(resolution, |k| k * rms));
+            let b = b as f32;
+            assert!(
+                support[..floor].iter().all(|&s| s),
+                "the whole floor is support"
+            );
+            for (p, &s) in pts[floor..].iter().zip(&support[floor..]) {
+                if (p[2] - b).abs() > 0.1 {
+                    assert_eq!(s, p[2] <= b, "{p:?}: band {b}");
+                }
+            }
+            assert!(rod_kept(&support) > rod_kept(&thesis));
+        }
+        // A flat part keeps the whole distance, as the thesis's path does.
+        let flat = SupportSize::Area {
+            view_area_mm2: 1000.0,
+            curved: false,
+        };
+        assert_eq!(run(0.25, flat).0, thesis);
+        // As wide as the plane's distance and no wider.
+        let mut wide = PreprocessConfig::default();
+        wide.support.noise_sigmas = 100.0;
+        assert_eq!(wide.support.band(0.25, 0.17), 1.5 * 0.25);
     }
 }

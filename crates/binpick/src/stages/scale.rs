@@ -3,8 +3,9 @@
 //! its parameters must grow with the object; here they grow on their own.
 //!
 //! Measured:
-//! - the **model's diameter** `d` (largest distance between two of its points) and the area of
-//!   the surface one view of it shows;
+//! - the **model's diameter** `d` (largest distance between two of its points), the area of
+//!   the surface one view of it shows and its typical **radius of curvature** `R` (None when
+//!   it is mostly flat);
 //! - the **scan's point spacing** `s` (the side of the square each point covers, from the
 //!   distance to its 8th-nearest neighbour, median over a sample) and its **gap** `g` (that
 //!   distance itself: what must be bridged to connect a line scanner's lines).
@@ -14,10 +15,13 @@
 //! | value                 | rule                                                        |
 //! |-----------------------|-------------------------------------------------------------|
 //! | working resolution w  | `resolution_mm`, or max(s, d / 100), on a 2^(1/16) ladder    |
-//! | support distance      | `support.distance_mm`, or 1.5 w                             |
+//! | support distance      | `support.distance_mm`, or 1.5 w; under a curved part, once the |
+//! |                       | noise is measured, `SupportRemoval::band` (3 noise, >= w)   |
 //! | connectivity          | 1.5 max(w, g) (support patches, clusters)                   |
 //! | sampling step         | max(`sampling_step_diameters` d, `min_sampling_step_resolutions` w) |
-//! | normal radius         | max(`normal_radius_steps` step, `min_normal_radius_resolutions` w) |
+//! | normal radius         | max(`normal_radius_steps` step, `min_normal_radius_resolutions` w), |
+//! |                       | for a curved part at most `normal_radius_curvatures` R but at least |
+//! |                       | `min_curved_normal_radius_resolutions` w                    |
 //! | view cell             | `cell_resolutions` w                                        |
 //! | view tolerance        | max(`tolerance_cells` cell, `tolerance_sigmas` noise)       |
 //! | part points           | visible area of one part / w^2 (cluster and support bounds) |
@@ -25,7 +29,7 @@
 use serde::{Deserialize, Serialize};
 
 use binpick_cloud::Point;
-use binpick_match::PointIndex;
+use binpick_match::{OrientedPoints, PointIndex};
 
 use crate::error::{InputKind, Result, input_as};
 use crate::params::Params;
@@ -78,6 +82,73 @@ pub fn measure_spacing(points: &[Point]) -> Result<Option<Spacing>> {
     Ok(Some(Spacing { spacing_mm, gap_mm }))
 }
 
+/// Surface samples the curvature is measured on.
+const CURVATURE_SAMPLES: usize = 2000;
+/// The curvature is read between neighbours this far apart, in model diameters (the finest
+/// scale a normal is ever fitted at: `min_normal_radius_resolutions` x d / 100) ...
+const CURVATURE_REACH_DIAMETERS: f64 = 0.02;
+/// ... and at least this share of that apart (a mesh's facets turn in steps).
+const CURVATURE_MIN_REACH: f64 = 0.5;
+/// A point's curvature is this quantile of what its neighbours show: the most curved
+/// direction (a cylinder's neighbours along its axis show none).
+const CURVATURE_QUANTILE: f64 = 0.9;
+
+/// The part's typical radius of curvature, mm: the median over its surface of the smallest
+/// radius of curvature at each point, measured between neighbours 0.01-0.02 diameters apart
+/// facing the same side (`|n_p - n_q| / |p - q|` is exactly 1 / R on a circle of radius R).
+/// None when most of the surface is flat. A thin rod gives its radius; sheet metal, whose
+/// faces are flat, gives None.
+pub fn measure_curvature_radius(surface: &OrientedPoints, diameter_mm: f64) -> Result<Option<f64>> {
+    if surface.points.len() < 2 || diameter_mm.is_nan() || diameter_mm <= 0.0 {
+        return Ok(None);
+    }
+    let index = PointIndex::new("model surface", &surface.points)
+        .map_err(|e| input_as("model", InputKind::Degenerate, e.to_string()))?;
+    let reach = (CURVATURE_REACH_DIAMETERS * diameter_mm) as f32;
+    let near = CURVATURE_MIN_REACH as f32 * reach;
+    let step = (surface.points.len() / CURVATURE_SAMPLES).max(1);
+    let mut found = Vec::new();
+    let mut ratios: Vec<f32> = Vec::new();
+    let mut curvatures: Vec<f32> = Vec::with_capacity(CURVATURE_SAMPLES + 1);
+    for i in (0..surface.points.len()).step_by(step) {
+        let (p, n) = (surface.points[i], surface.normals[i]);
+        index.within_into(&p, reach, &mut found);
+        ratios.clear();
+        for &j in &found {
+            let (q, m) = (surface.points[j as usize], surface.normals[j as usize]);
+            let d = dist(&p, &q);
+            if d < near || dot(&n, &m) <= 0.0 {
+                continue;
+            }
+            let dn = [n[0] - m[0], n[1] - m[1], n[2] - m[2]];
+            ratios.push(norm(&dn) / d);
+        }
+        if ratios.len() < 4 {
+            continue;
+        }
+        ratios.sort_by(f32::total_cmp);
+        let k = ((ratios.len() - 1) as f64 * CURVATURE_QUANTILE).round() as usize;
+        curvatures.push(ratios[k]);
+    }
+    if curvatures.is_empty() {
+        return Ok(None);
+    }
+    curvatures.sort_by(f32::total_cmp);
+    let typical = f64::from(curvatures[curvatures.len() / 2]);
+    // Flatter than a radius of the part's diameter: as good as flat.
+    Ok((typical * diameter_mm > 1.0).then(|| 1.0 / typical))
+}
+
+fn dot(a: &[f32; 3], b: &[f32; 3]) -> f32 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+fn norm(a: &[f32; 3]) -> f32 {
+    dot(a, a).sqrt()
+}
+fn dist(a: &[f32; 3], b: &[f32; 3]) -> f32 {
+    norm(&[a[0] - b[0], a[1] - b[1], a[2] - b[2]])
+}
+
 /// `v` rounded onto the 2^(1/16) ladder (exact under scaling by powers of two).
 fn on_ladder(v: f64) -> f64 {
     (2f64).powf((v.log2() * LADDER_STEPS_PER_OCTAVE).round() / LADDER_STEPS_PER_OCTAVE)
@@ -91,6 +162,9 @@ pub struct PartSize {
     /// Area of the surface one view of the part shows, mm^2 (a scan model: all of it; a
     /// mesh: half its surface).
     pub view_area_mm2: f64,
+    /// The part's typical radius of curvature, mm ([`measure_curvature_radius`]); None for a
+    /// part that is mostly flat.
+    pub curvature_radius_mm: Option<f64>,
 }
 
 impl DerivedScale {
@@ -117,10 +191,17 @@ impl DerivedScale {
             (v.sampling_step_diameters * d).max(v.min_sampling_step_resolutions * resolution_mm);
         let normal_radius_mm = (v.normal_radius_steps * sampling_step_mm)
             .max(v.min_normal_radius_resolutions * resolution_mm);
+        // A plane fitted over more than the part's curvature blurs a rod into a ridge.
+        let normal_radius_mm = part.curvature_radius_mm.map_or(normal_radius_mm, |r| {
+            normal_radius_mm
+                .min(v.normal_radius_curvatures * r)
+                .max(v.min_curved_normal_radius_resolutions * resolution_mm)
+        });
         let cell_mm = params.verify.cell_resolutions * resolution_mm;
         Ok(Self {
             model_diameter_mm: d,
             part_view_area_mm2: part.view_area_mm2,
+            part_curvature_radius_mm: part.curvature_radius_mm,
             scan_spacing_mm: scan.map(|s| s.spacing_mm),
             scan_gap_mm: scan.map(|s| s.gap_mm),
             resolution_mm,
@@ -144,8 +225,11 @@ impl DerivedScale {
         let noise = self
             .scan_noise_mm
             .map_or(String::new(), |n| format!(" (noise {n:.2} mm)"));
+        let curvature = self
+            .part_curvature_radius_mm
+            .map_or(String::new(), |r| format!(", curvature radius {r:.1} mm"));
         format!(
-            "{measured}model diameter {:.1} mm -> resolution {:.3} mm, sampling step {:.2} mm, \
+            "{measured}model diameter {:.1} mm{curvature} -> resolution {:.3} mm, sampling step {:.2} mm, \
              normal radius {:.2} mm, view cell {:.2} mm, tolerance {:.2} mm{noise}, support distance {:.2} mm",
             self.model_diameter_mm,
             self.resolution_mm,
@@ -158,13 +242,18 @@ impl DerivedScale {
     }
 
     /// Takes the scan's noise into account: the view tolerance grows to
-    /// `tolerance_sigmas` x the noise when that is wider.
+    /// `tolerance_sigmas` x the noise when that is wider, and under a curved part the support
+    /// distance becomes the band preprocessing labelled with (`SupportRemoval::band`).
     pub fn with_noise(mut self, noise_mm: Option<f64>, params: &Params) -> Self {
         self.scan_noise_mm = noise_mm;
         if let Some(sigma) = noise_mm {
             self.tolerance_mm = self
                 .tolerance_mm
                 .max(params.verify.tolerance_sigmas * sigma);
+            if self.part_curvature_radius_mm.is_some() {
+                self.support_distance_mm =
+                    params.preprocess.support.band(self.resolution_mm, sigma);
+            }
         }
         self
     }
@@ -204,6 +293,7 @@ mod tests {
         let part = PartSize {
             diameter_mm: 71.3,
             view_area_mm2: 2500.0,
+            curvature_radius_mm: None,
         };
         let scan = Spacing {
             spacing_mm: 0.61,
@@ -214,6 +304,7 @@ mod tests {
             let p2 = PartSize {
                 diameter_mm: part.diameter_mm * k,
                 view_area_mm2: part.view_area_mm2 * k * k,
+                curvature_radius_mm: None,
             };
             let s2 = Spacing {
                 spacing_mm: scan.spacing_mm * k,
@@ -244,5 +335,99 @@ mod tests {
         )
         .unwrap();
         assert!(coarse.resolution_mm >= 0.7 * 0.713 && coarse.resolution_mm <= 0.75);
+    }
+
+    /// A cylinder of `radius` and `length` along x, sampled about every `step` mm around and
+    /// along, with outward normals.
+    fn cylinder(radius: f32, length: f32, step: f32) -> OrientedPoints {
+        let around = (std::f32::consts::TAU * radius / step).ceil() as usize;
+        let along = (length / step).ceil() as usize;
+        let mut c = OrientedPoints::default();
+        for i in 0..along {
+            for j in 0..around {
+                let a = j as f32 * std::f32::consts::TAU / around as f32;
+                let (sin, cos) = a.sin_cos();
+                c.points.push([i as f32 * step, radius * cos, radius * sin]);
+                c.normals.push([0.0, cos, sin]);
+            }
+        }
+        c
+    }
+
+    #[test]
+    fn a_rod_measures_its_radius_and_a_plate_is_flat() {
+        for radius in [3.5f32, 10.0] {
+            let rod = cylinder(radius, 100.0, 0.25);
+            let r = measure_curvature_radius(&rod, 100.0).unwrap().unwrap();
+            assert!((r / f64::from(radius) - 1.0).abs() < 0.05, "{radius}: {r}");
+            // Exactly proportional under scaling.
+            let big = OrientedPoints {
+                points: rod.points.iter().map(|p| p.map(|c| 2.0 * c)).collect(),
+                normals: rod.normals.clone(),
+            };
+            let rb = measure_curvature_radius(&big, 200.0).unwrap().unwrap();
+            assert!((rb / (2.0 * r) - 1.0).abs() < 1e-5, "{rb} vs 2 x {r}");
+        }
+        // A plate 2 mm thick: both faces flat, each seen from its own side.
+        let mut plate = OrientedPoints::default();
+        for i in 0..200 {
+            for j in 0..100 {
+                for (z, n) in [(0.0, -1.0), (2.0, 1.0)] {
+                    plate.points.push([i as f32 * 0.5, j as f32 * 0.5, z]);
+                    plate.normals.push([0.0, 0.0, n]);
+                }
+            }
+        }
+        assert_eq!(measure_curvature_radius(&plate, 112.0).unwrap(), None);
+        assert_eq!(
+            measure_curvature_radius(&OrientedPoints::default(), 1.0).unwrap(),
+            None
+        );
+    }
+
+    #[test]
+    fn a_curved_part_caps_the_normal_radius_at_its_curvature_but_not_below_two_resolutions() {
+        let params = Params::default();
+        let scan = Some(Spacing {
+            spacing_mm: 1.9,
+            gap_mm: 3.0,
+        });
+        let part = |curvature_radius_mm| PartSize {
+            diameter_mm: 94.0,
+            view_area_mm2: 1600.0,
+            curvature_radius_mm,
+        };
+        let flat = DerivedScale::derive(&part(None), scan, &params).unwrap();
+        let w = flat.resolution_mm;
+        assert_eq!(flat.normal_radius_mm, 3.0 * w);
+        // Curved more gently than the radius: unchanged.
+        let gentle = DerivedScale::derive(&part(Some(8.0)), scan, &params).unwrap();
+        assert_eq!(gentle.normal_radius_mm, flat.normal_radius_mm);
+        assert_eq!(gentle.part_curvature_radius_mm, Some(8.0));
+        // A rod of 5 mm radius: 5 mm.
+        let rod = DerivedScale::derive(&part(Some(5.0)), scan, &params).unwrap();
+        assert_eq!(rod.normal_radius_mm, 5.0);
+        // A thinner one: two resolutions (noise).
+        let thin = DerivedScale::derive(&part(Some(1.0)), scan, &params).unwrap();
+        assert_eq!(thin.normal_radius_mm, 2.0 * w);
+        // Nothing else moves.
+        for d in [&gentle, &rod, &thin] {
+            assert_eq!(d.sampling_step_mm, flat.sampling_step_mm);
+            assert_eq!(d.tolerance_mm, flat.tolerance_mm);
+            assert_eq!(d.support_distance_mm, flat.support_distance_mm);
+        }
+        // Once the floor's noise (0.6 mm) is known, the support band narrows under a curved
+        // part (3 x 0.6 mm, at least one resolution) and stays the whole 1.5 w under a flat one.
+        assert_eq!(flat.support_distance_mm, 1.5 * w);
+        assert_eq!(
+            flat.with_noise(Some(0.6), &params).support_distance_mm,
+            1.5 * w
+        );
+        let banded = rod.with_noise(Some(0.6), &params);
+        assert_eq!(banded.support_distance_mm, (3.0 * 0.6f64).max(w));
+        assert_eq!(
+            banded.tolerance_mm,
+            flat.with_noise(Some(0.6), &params).tolerance_mm
+        );
     }
 }
