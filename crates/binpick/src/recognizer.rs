@@ -554,7 +554,7 @@ impl Recognizer {
             preprocessed,
         )?;
         let noise = preprocessed.support_planes.first().and_then(|p| p.rms_mm);
-        let scale = scale.with_noise(noise, p);
+        let scale = scale.with_noise(noise, preprocessed.support_band_mm, p);
         *scale_out = Some(scale);
         let planes = preprocessed
             .support_planes

@@ -278,6 +278,7 @@ fn convert(r: ReferenceResult, p: &Params) -> Result<ReferenceRun> {
             outside_roi: r.outside_roi as usize,
             isolated_removed: 0,
             voxel_merged: r.voxel_merged as usize,
+            support_band_mm: None,
             support_planes: r
                 .support_planes
                 .iter()

@@ -602,6 +602,11 @@ pub struct PreprocessReport {
     pub voxel_merged: usize,
     /// Removed as supporting surface, plane by plane.
     pub support_planes: Vec<RemovedPlane>,
+    /// Under a curved part (scene voting), the band around each plane within which points
+    /// were labelled support, narrowed to the first plane's noise (`SupportRemoval::band`),
+    /// mm; absent where the whole support distance was labelled.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub support_band_mm: Option<f64>,
     /// Points left for clustering.
     pub remaining: usize,
 }

@@ -410,8 +410,8 @@ fn find_support(
         let sq: f64 = patch.iter().map(|&k| distance(k).powi(2)).sum();
         let rms_mm = (!patch.is_empty()).then(|| (sq / patch.len() as f64).sqrt());
         // With the noise measured (scene voting) and a curved part, the band narrows to what
-        // the largest plane's noise needs (the scan's noise, as `DerivedScale::with_noise`
-        // takes it).
+        // the largest plane's noise needs (reported: `DerivedScale::with_noise` takes it as
+        // the support distance).
         if let (true, Some(rms), None) = (curved, rms_mm, band) {
             band = Some(support.band(resolution_mm, rms));
         }
@@ -440,6 +440,7 @@ fn find_support(
             !is_inlier[k - 1]
         });
     }
+    report.support_band_mm = band;
     Ok(removed)
 }
 
@@ -625,6 +626,7 @@ mod tests {
             assert!((0.17..0.21).contains(&rms), "{rms}");
             let b = cfg.support.band(resolution, rms);
             assert_eq!(b, sigmas.map_or(resolution, |k| k * rms));
+            assert_eq!(report.support_band_mm, Some(b), "the band used is reported");
             let b = b as f32;
             assert!(
                 support[..floor].iter().all(|&s| s),
@@ -642,7 +644,9 @@ mod tests {
             view_area_mm2: 1000.0,
             curved: false,
         };
-        assert_eq!(run(0.25, flat).0, thesis);
+        let (flat_support, flat_report, _) = run(0.25, flat);
+        assert_eq!(flat_support, thesis);
+        assert_eq!(flat_report.support_band_mm, None);
         // As wide as the plane's distance and no wider.
         let mut wide = PreprocessConfig::default();
         wide.support.noise_sigmas = 100.0;

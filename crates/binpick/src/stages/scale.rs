@@ -242,18 +242,23 @@ impl DerivedScale {
     }
 
     /// Takes the scan's noise into account: the view tolerance grows to
-    /// `tolerance_sigmas` x the noise when that is wider, and under a curved part the support
-    /// distance becomes the band preprocessing labelled with (`SupportRemoval::band`).
-    pub fn with_noise(mut self, noise_mm: Option<f64>, params: &Params) -> Self {
+    /// `tolerance_sigmas` x the noise when that is wider, and the support distance becomes
+    /// the band preprocessing labelled support with, when it narrowed one
+    /// (`PreprocessReport::support_band_mm`: under a curved part).
+    pub fn with_noise(
+        mut self,
+        noise_mm: Option<f64>,
+        support_band_mm: Option<f64>,
+        params: &Params,
+    ) -> Self {
         self.scan_noise_mm = noise_mm;
         if let Some(sigma) = noise_mm {
             self.tolerance_mm = self
                 .tolerance_mm
                 .max(params.verify.tolerance_sigmas * sigma);
-            if self.part_curvature_radius_mm.is_some() {
-                self.support_distance_mm =
-                    params.preprocess.support.band(self.resolution_mm, sigma);
-            }
+        }
+        if let Some(band) = support_band_mm {
+            self.support_distance_mm = band;
         }
         self
     }
@@ -416,18 +421,22 @@ mod tests {
             assert_eq!(d.tolerance_mm, flat.tolerance_mm);
             assert_eq!(d.support_distance_mm, flat.support_distance_mm);
         }
-        // Once the floor's noise (0.6 mm) is known, the support band narrows under a curved
-        // part (3 x 0.6 mm, at least one resolution) and stays the whole 1.5 w under a flat one.
+        // Once the floor's noise (0.6 mm) is known, the support distance becomes the band
+        // preprocessing narrowed to under a curved part (3 x 0.6 mm, at least one resolution)
+        // and stays the whole 1.5 w where it labelled the whole distance (a flat part).
         assert_eq!(flat.support_distance_mm, 1.5 * w);
         assert_eq!(
-            flat.with_noise(Some(0.6), &params).support_distance_mm,
+            flat.with_noise(Some(0.6), None, &params)
+                .support_distance_mm,
             1.5 * w
         );
-        let banded = rod.with_noise(Some(0.6), &params);
-        assert_eq!(banded.support_distance_mm, (3.0 * 0.6f64).max(w));
+        let band = params.preprocess.support.band(w, 0.6);
+        assert_eq!(band, (3.0 * 0.6f64).max(w));
+        let banded = rod.with_noise(Some(0.6), Some(band), &params);
+        assert_eq!(banded.support_distance_mm, band);
         assert_eq!(
             banded.tolerance_mm,
-            flat.with_noise(Some(0.6), &params).tolerance_mm
+            flat.with_noise(Some(0.6), None, &params).tolerance_mm
         );
     }
 }
