@@ -32,7 +32,9 @@ use crate::result::{
     CandidateRecord, DerivedScale, Detection, FoundBy, IcpReport, PoseCheck, RefusedCandidate,
     VotingReport,
 };
-use crate::stages::hypotheses::{VotingModel, matching, scene_normals, scene_samples, vote};
+use crate::stages::hypotheses::{
+    VotingModel, matching, scene_normals, scene_samples, view_normals, vote,
+};
 use crate::stages::part::Part;
 use crate::stages::rank::height_mm;
 use crate::stages::verify::{
@@ -103,17 +105,26 @@ impl SceneVoting<'_> {
             .zip(&bounding)
             .map(|(c, b)| (*c, b.is_some()))
             .collect();
+        let towards = viewpoint(&sensor, points);
         let normals = scene_normals(
             points,
             support,
             &planes,
             self.scale,
-            viewpoint(&sensor, points),
+            towards,
             self.threads as u32,
+        )?;
+        let view_normals = view_normals(
+            points,
+            support,
+            &normals,
+            self.scale.normal_radius_mm,
+            towards,
         )?;
         let surface = SceneSurface {
             points: points.to_vec(),
             normals,
+            view_normals,
             support: support.to_vec(),
             world,
             bounding: bounding.into_iter().flatten().collect(),

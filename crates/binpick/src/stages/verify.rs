@@ -99,6 +99,8 @@ pub(crate) struct SceneSurface {
     pub points: Vec<Point>,
     /// ... its normal (NaN where undefined) ...
     pub normals: Vec<[f32; 3]>,
+    /// ... the normal the view judges poses by (`view_normals`: a strip faces the sensor) ...
+    pub view_normals: Vec<[f32; 3]>,
     /// ... and whether it is support (belt, floor, wall).
     pub support: Vec<bool>,
     /// The points that are not support.
@@ -149,7 +151,7 @@ impl<'a> Verifier<'a> {
             &view,
             &scene.points,
             &scene.support,
-            Some(&scene.normals),
+            Some(&scene.view_normals),
         )
         .map_err(matching("view grid"))?;
         let on_plane = scale.support_distance_mm;
