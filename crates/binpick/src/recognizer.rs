@@ -460,7 +460,15 @@ impl Recognizer {
             None => (Vec::new(), None),
         };
         let ranking = tracing::info_span!("ranking").entered();
-        rank_by_view(&mut detections, &p.ranking, p.verify.free_space_weight);
+        let edge_on = scale
+            .as_ref()
+            .map_or(0.0, crate::stages::verify::edge_on_cells);
+        rank_by_view(
+            &mut detections,
+            &p.ranking,
+            p.verify.free_space_weight,
+            edge_on,
+        );
         let tolerance = scale.map_or(p.validation.outlier_distance_mm, |s| s.tolerance_mm);
         self.check_grasps(&mut detections, &points, p, tolerance)?;
         drop(ranking);

@@ -696,7 +696,9 @@ pub struct VotingReport {
     /// Refused: mostly confirmed by the support rather than by a part's surface.
     #[serde(default)]
     pub rejected_on_support: usize,
-    /// Refused: its outline does not continue in the scan.
+    /// Refused: its outline does not continue in the scan (the scan's surface carries on
+    /// past it), including poses that show only an edge laid on a wider surface (refused
+    /// before the explanation, not counted in `candidates`).
     #[serde(default)]
     pub rejected_no_outline: usize,
     /// Refused: the scan fits its surface poorly.

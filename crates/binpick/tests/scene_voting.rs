@@ -311,3 +311,35 @@ fn the_outline_weight_lifts_the_acceptance_fit_of_a_part_standing_on_its_edge_on
     let g = gain(&s.pickable[0], 0.0);
     assert!((0.0..0.03).contains(&g), "on a broad side: fit gain {g:.3}");
 }
+
+#[test]
+fn brackets_lying_on_the_edge_of_their_sheet_in_a_pile_are_found() {
+    // A depth camera's bin of Z brackets; in this scan three pickable brackets lie on the
+    // 2 mm edge of their sheet and show the sensor only that Z-shaped strip. Their point
+    // pairs are all coplanar, and in the whole part's table they vote with its broad faces;
+    // before the rims voted on their own, none of the three was found (0 of 3).
+    let s = bracket_scan("brackets-bin-depth", 1);
+    assert!(s.on_edge.len() >= 3, "{} on their edge", s.on_edge.len());
+    let r = s.recognizer.recognize(&s.scene).unwrap();
+    let found = |truth: &Isometry3<f64>| {
+        r.detections.iter().any(|d| {
+            pose::translation_error_mm(truth, &d.pose) < 0.05 * s.diameter_mm
+                && pose::rotation_error_deg(truth, &d.pose) < 5.0
+        })
+    };
+    let on_edge = s.on_edge.iter().filter(|t| found(t)).count();
+    assert!(
+        on_edge >= 2,
+        "{on_edge} of {} on their edge found",
+        s.on_edge.len()
+    );
+    // The first pick is a right pose.
+    let first = &r.detections[0].pose;
+    assert!(
+        s.pickable.iter().chain(&s.on_edge).any(|t| {
+            pose::translation_error_mm(t, first) < 0.05 * s.diameter_mm
+                && pose::rotation_error_deg(t, first) < 5.0
+        }),
+        "first pick {first:?}"
+    );
+}

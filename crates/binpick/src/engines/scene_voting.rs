@@ -21,9 +21,7 @@ use nalgebra::Isometry3;
 use rayon::prelude::*;
 
 use binpick_cloud::Point;
-use binpick_match::{
-    ExplainConfig, OrientedPoints, PoseCluster, Rejection, Sensor, ViewScore, explain_scene,
-};
+use binpick_match::{ExplainConfig, OrientedPoints, Rejection, Sensor, ViewScore, explain_scene};
 
 use crate::deadline::{Deadline, ms};
 use crate::error::Result;
@@ -33,7 +31,7 @@ use crate::result::{
     VotingReport,
 };
 use crate::stages::hypotheses::{
-    VotingModel, matching, scene_normals, scene_samples, view_normals, vote,
+    Voted, VotingModel, matching, scene_normals, scene_rims, scene_samples, view_normals, vote,
 };
 use crate::stages::part::Part;
 use crate::stages::rank::height_mm;
@@ -122,6 +120,7 @@ impl SceneVoting<'_> {
             towards,
         )?;
         let surface = SceneSurface {
+            ribbons: Vec::new(),
             points: points.to_vec(),
             normals,
             view_normals,
@@ -216,13 +215,12 @@ impl SceneVoting<'_> {
     pub(crate) fn detect(&self, points: &[Point], support: &[bool]) -> Result<VotingFound> {
         let p = self.params;
         let lap = Instant::now();
-        let (sensor, surface) = self.surface(points, support)?;
-        let world = &surface.world;
+        let (sensor, mut surface) = self.surface(points, support)?;
         let mut report = VotingReport {
             sensor: describe(&sensor),
             ..VotingReport::default()
         };
-        if world.len() < 3 {
+        if surface.world.len() < 3 {
             return Ok(VotingFound {
                 detections: Vec::new(),
                 report,
@@ -238,16 +236,32 @@ impl SceneVoting<'_> {
             .collect();
         let samples = scene_samples(
             OrientedPoints {
-                points: world.clone(),
+                points: surface.world.clone(),
                 normals: world_normals,
             },
             self.scale,
         )?;
+        let rims = if self.model.rims.is_some() {
+            let (rims, ribbons) = scene_rims(
+                &surface.world,
+                &samples,
+                self.scale.sampling_step_mm,
+                self.scale.model_diameter_mm,
+                viewpoint(&sensor, points),
+            )?;
+            surface.ribbons = ribbons;
+            rims
+        } else {
+            OrientedPoints::default()
+        };
         self.deadline.check("scene normals")?;
         let voting = tracing::info_span!("voting").entered();
-        let (votes, hypotheses) = vote(self.model, self.part, &samples, self.scale, &p.voting)?;
+        let voted = vote(
+            self.model, self.part, &samples, &rims, self.scale, &p.voting,
+        )?;
+        let hypotheses = &voted.clusters;
         report.scene_samples = samples.len();
-        report.votes = votes;
+        report.votes = voted.votes;
         report.hypotheses = hypotheses.len();
         self.deadline.check("voting")?;
         drop(voting);
@@ -262,7 +276,8 @@ impl SceneVoting<'_> {
         let lap = Instant::now();
         let verifier = Verifier::new(sensor, &surface, self.model, self.scale, &p.verify)?;
         let accept = self.acceptance(&verifier);
-        let mut candidates = self.candidates(&verifier, &accept, &hypotheses, 0)?;
+        let (mut candidates, mut laid_on_surfaces) =
+            Self::off_surfaces(&verifier, self.candidates(&verifier, &accept, &voted, 0)?);
         let mut explanation = self.explain(&candidates, &verifier.support_explained, &accept)?;
         // Further rounds vote over what the taken parts leave unexplained.
         let mut offset = hypotheses.len();
@@ -271,26 +286,33 @@ impl SceneVoting<'_> {
                 break;
             }
             let rest = self.unexplained(&samples, &candidates, &explanation.taken)?;
-            let (votes, more) = vote(self.model, self.part, &rest, self.scale, &p.voting)?;
-            report.votes += votes;
-            report.hypotheses += more.len();
-            if more.is_empty() {
+            let rest_rims = self.unexplained(&rims, &candidates, &explanation.taken)?;
+            let more = vote(
+                self.model, self.part, &rest, &rest_rims, self.scale, &p.voting,
+            )?;
+            report.votes += more.votes;
+            report.hypotheses += more.clusters.len();
+            if more.clusters.is_empty() {
                 break;
             }
-            let (seen, on_support): (Vec<Candidate>, Vec<Candidate>) = self
-                .candidates(&verifier, &accept, &more, offset)?
-                .into_iter()
-                .partition(|c| {
+            let (judged, laid) = Self::off_surfaces(
+                &verifier,
+                self.candidates(&verifier, &accept, &more, offset)?,
+            );
+            laid_on_surfaces += laid;
+            let (seen, on_support): (Vec<Candidate>, Vec<Candidate>) =
+                judged.into_iter().partition(|c| {
                     c.score.support_explained_ratio() <= p.verify.max_explained_by_support
                 });
             report.rejected_on_support += on_support.len();
             candidates.extend(seen);
-            offset += more.len();
+            offset += more.clusters.len();
             explanation = self.explain(&candidates, &verifier.support_explained, &accept)?;
         }
         report.candidates = candidates.len();
         let scores: Vec<ViewScore> = candidates.iter().map(|c| c.score.clone()).collect();
         self.tally(&explanation.rejected, &scores, &mut report);
+        report.rejected_no_outline += laid_on_surfaces;
         report.accepted = explanation.taken.len();
         if p.verify.report_candidates {
             report.candidates_detail = candidates
@@ -327,14 +349,23 @@ impl SceneVoting<'_> {
         &self,
         verifier: &Verifier,
         accept: &ExplainConfig,
-        hypotheses: &[PoseCluster],
+        voted: &Voted,
         offset: usize,
     ) -> Result<Vec<Candidate>> {
         // Interrupted, the candidates verified so far still compete for the scene (each
         // taken part was verified against the view); the others are dropped. Hypotheses are
         // taken up best voted first, so those verified so far are the likeliest parts.
-        let verified = in_order(hypotheses, |i, h| {
-            let c = self.verify(verifier, accept, offset + i, h.votes, &h.pose);
+        let verified = in_order(&voted.clusters, |i, h| {
+            // A rim's pose is first aligned on the scene's ribbons alone.
+            let rim = if i >= voted.first_rim {
+                verifier.refine_rim(&h.pose)
+            } else {
+                Ok(None)
+            };
+            let c = rim.and_then(|rim| {
+                let initial = rim.unwrap_or(h.pose);
+                self.verify(verifier, accept, offset + i, h.votes, &initial)
+            });
             self.deadline.partial(c)
         })?;
         let mut candidates: Vec<Candidate> = verified.into_iter().flatten().collect();
@@ -379,6 +410,24 @@ impl SceneVoting<'_> {
             candidates.remove(k);
         }
         Ok(candidates)
+    }
+
+    /// `candidates` less the edge-on poses laid on a wider surface
+    /// ([`Verifier::edge_on_a_surface`]): their outline fails in their own right, whatever
+    /// other strips beside them explain.
+    /// With how many were dropped.
+    fn off_surfaces(verifier: &Verifier, candidates: Vec<Candidate>) -> (Vec<Candidate>, usize) {
+        let laid: Vec<bool> = candidates
+            .par_iter()
+            .map(|c| verifier.edge_on_a_surface(&c.pose, &c.score))
+            .collect();
+        let dropped = laid.iter().filter(|&&l| l).count();
+        let kept = candidates
+            .into_iter()
+            .zip(laid)
+            .filter_map(|(c, laid)| (!laid).then_some(c))
+            .collect();
+        (kept, dropped)
     }
 
     /// The scene samples farther than two view tolerances from every taken part's surface.

@@ -41,6 +41,10 @@ pub(crate) struct VotingModel {
     /// The part's surface at the working resolution (what is rendered and aligned).
     pub dense: OrientedPoints,
     pub table: PpfModel,
+    /// The point pairs of the part's rims ([`model_rims`]), when it has some.
+    pub rims: Option<PpfModel>,
+    /// Per point of `dense`: it lies on a rim (empty without a rim table).
+    pub rim_points: Vec<bool>,
     /// Centroid of the surface, model frame.
     pub centre: Point3<f64>,
     /// Half-turns about the principal axes that map the part nearly onto itself.
@@ -54,18 +58,25 @@ impl VotingModel {
         // side): sampled per facing, not per cell.
         let dense = subsample_by_facing(&part.surface, scale.resolution_mm);
         let samples = subsample_by_facing(&dense, scale.sampling_step_mm);
-        let table = PpfModel::new(
-            &samples,
-            PpfConfig {
-                distance_step_mm: scale.sampling_step_mm,
-                feature_angle_bins: cfg.feature_angle_bins,
-                alpha_bins: cfg.alpha_bins,
-                max_pair_distance_mm: part.size.diameter_mm,
-                spread: cfg.spread,
-                max_pairs_per_bin: cfg.max_pairs_per_bin,
-            },
-        )
-        .map_err(matching("model point pairs"))?;
+        let pairs = PpfConfig {
+            distance_step_mm: scale.sampling_step_mm,
+            feature_angle_bins: cfg.feature_angle_bins,
+            alpha_bins: cfg.alpha_bins,
+            max_pair_distance_mm: part.size.diameter_mm,
+            spread: cfg.spread,
+            max_pairs_per_bin: cfg.max_pairs_per_bin,
+        };
+        let table =
+            PpfModel::new(&samples, pairs.clone()).map_err(matching("model point pairs"))?;
+        let (rim_profiles, on_rim) =
+            model_rims(&dense, scale.sampling_step_mm, part.size.diameter_mm)?;
+        let rim_samples = subsample_by_facing(&rim_profiles, scale.sampling_step_mm);
+        let rims = if cfg.rim_hypotheses > 0 && rim_samples.len() >= MIN_RIM_SAMPLES {
+            Some(PpfModel::new(&rim_samples, pairs).map_err(matching("model rim pairs"))?)
+        } else {
+            None
+        };
+        let rim_points = if rims.is_some() { on_rim } else { Vec::new() };
         let kp: Vec<Point> = binpick_cloud::strided_points(&dense.points, SYMMETRY_SAMPLE_POINTS)
             .iter()
             .map(|p| [p.x as f32, p.y as f32, p.z as f32])
@@ -99,6 +110,8 @@ impl VotingModel {
             centre: part.centre(),
             dense,
             table,
+            rims,
+            rim_points,
             near_symmetries,
         })
     }
@@ -188,7 +201,6 @@ pub(crate) fn view_normals(
     use rayon::prelude::*;
     let vp = nalgebra::Vector3::from(viewpoint);
     let index = PointIndex::new("scene", points).map_err(matching("scene normals"))?;
-    let at = |q: &Point| nalgebra::Vector3::new(f64::from(q[0]), f64::from(q[1]), f64::from(q[2]));
     Ok(points
         .par_iter()
         .zip(support)
@@ -198,30 +210,12 @@ pub(crate) fn view_normals(
                 return n;
             }
             index.within_into(p, radius as f32, near);
-            if near.len() < 3 {
+            let Some(axis) =
+                Spread::of(near.iter().map(|&k| &points[k as usize])).and_then(|s| s.ribbon_axis())
+            else {
                 return n;
-            }
-            let mean = near
-                .iter()
-                .map(|&k| at(&points[k as usize]))
-                .sum::<nalgebra::Vector3<f64>>()
-                / near.len() as f64;
-            let cov = near
-                .iter()
-                .map(|&k| {
-                    let d = at(&points[k as usize]) - mean;
-                    d * d.transpose()
-                })
-                .sum::<nalgebra::Matrix3<f64>>();
-            let eig = nalgebra::SymmetricEigen::new(cov);
-            let mut order = [0usize, 1, 2];
-            order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
-            let (first, second) = (eig.eigenvalues[order[0]], eig.eigenvalues[order[1]]);
-            if !(first > 0.0 && second < RIBBON_SPREAD_RATIO * first) {
-                return n;
-            }
-            let axis = eig.eigenvectors.column(order[0]).into_owned();
-            let to_sensor = (vp - at(p)).normalize();
+            };
+            let to_sensor = (vp - vector(p)).normalize();
             let across = to_sensor - axis * axis.dot(&to_sensor);
             let len = across.norm();
             if len > 1e-6 {
@@ -234,14 +228,245 @@ pub(crate) fn view_normals(
         .collect())
 }
 
+fn vector(p: &Point) -> nalgebra::Vector3<f64> {
+    nalgebra::Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]))
+}
+
+/// The principal spreads (summed squares, mm^2, largest first) and axes of a set of points.
+struct Spread {
+    values: [f64; 3],
+    axes: [nalgebra::Vector3<f64>; 3],
+}
+
+impl Spread {
+    /// None for fewer than 3 points.
+    fn of<'p>(points: impl Iterator<Item = &'p Point> + Clone) -> Option<Self> {
+        let n = points.clone().count();
+        if n < 3 {
+            return None;
+        }
+        let mean = points.clone().map(vector).sum::<nalgebra::Vector3<f64>>() / n as f64;
+        let cov = points
+            .map(|q| {
+                let d = vector(q) - mean;
+                d * d.transpose()
+            })
+            .sum::<nalgebra::Matrix3<f64>>();
+        let eig = nalgebra::SymmetricEigen::new(cov);
+        let mut order = [0usize, 1, 2];
+        order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
+        Some(Self {
+            values: order.map(|k| eig.eigenvalues[k]),
+            axes: order.map(|k| eig.eigenvectors.column(k).into_owned()),
+        })
+    }
+
+    /// The axis of a ribbon ([`RIBBON_SPREAD_RATIO`]).
+    fn ribbon_axis(&self) -> Option<nalgebra::Vector3<f64>> {
+        let [first, second, _] = self.values;
+        (first > 0.0 && second < RIBBON_SPREAD_RATIO * first).then_some(self.axes[0])
+    }
+
+    /// The normal of a flat profile: a plane that the points fill in two directions
+    /// ([`PROFILE_WIDTH`], [`PROFILE_FLATNESS`]).
+    fn profile_normal(&self) -> Option<nalgebra::Vector3<f64>> {
+        let [first, second, third] = self.values;
+        (first > 0.0 && second > PROFILE_WIDTH * first && third < PROFILE_FLATNESS * second)
+            .then_some(self.axes[2])
+    }
+}
+
+/// Rims are fitted into profiles over this many diameters.
+const RIM_PROFILE_DIAMETERS: f64 = 0.25;
+/// A profile's second spread is at least this share of its first (a bend, not a line) ...
+const PROFILE_WIDTH: f64 = 0.05;
+/// ... and its third under this share of its second (flat).
+const PROFILE_FLATNESS: f64 = 0.1;
+/// A rim profile faces the sensor (or its face's normal) within 45 deg.
+const RIM_FACING_COS: f64 = 0.7;
+/// Fewer model rim samples than this make no rim table.
+const MIN_RIM_SAMPLES: usize = 8;
+
+/// The part's rims, with the normals of their profiles: the points of `dense` whose face
+/// (neighbours within `radius`, mm, facing within 60 deg of theirs) is a ribbon, where the
+/// rim points within a quarter of `diameter` (mm) form a flat profile facing as the face.
+/// A Z bracket's rims are the 2 mm edges of its sheet: lying on its side, the sensor sees
+/// one edge flat on, a strip whose pairs of points are all coplanar, which the table of the
+/// whole part files with the pairs of its wide faces (and those outvote it).
+pub(crate) fn model_rims(
+    dense: &OrientedPoints,
+    radius: f64,
+    diameter: f64,
+) -> Result<(OrientedPoints, Vec<bool>)> {
+    use rayon::prelude::*;
+    let index = PointIndex::new("model", &dense.points).map_err(matching("model rims"))?;
+    let on_rim: Vec<bool> = dense
+        .points
+        .par_iter()
+        .zip(&dense.normals)
+        .map_init(Vec::new, |near, (p, n)| {
+            index.within_into(p, radius as f32, near);
+            let n = vector(n);
+            let face = near
+                .iter()
+                .filter(|&&k| vector(&dense.normals[k as usize]).dot(&n) > 0.5)
+                .map(|&k| &dense.points[k as usize]);
+            Spread::of(face).and_then(|s| s.ribbon_axis()).is_some()
+        })
+        .collect();
+    let rim: Vec<usize> = (0..dense.len()).filter(|&i| on_rim[i]).collect();
+    let rim_points: Vec<Point> = rim.iter().map(|&i| dense.points[i]).collect();
+    let facing: Vec<nalgebra::Vector3<f64>> =
+        rim.iter().map(|&i| vector(&dense.normals[i])).collect();
+    let profiled = profiles(&rim_points, diameter, |k, normal| {
+        let c = normal.dot(&facing[k]);
+        (c.abs() > RIM_FACING_COS).then(|| normal * c.signum())
+    });
+    Ok((profiled, on_rim))
+}
+
+/// Whether the neighbourhood of `p` within `radius` (mm) among `points` (indexed by `index`;
+/// `near` is scratch space) is a ribbon ([`RIBBON_SPREAD_RATIO`]).
+pub(crate) fn is_ribbon(
+    points: &[Point],
+    index: &PointIndex,
+    p: &Point,
+    radius: f64,
+    near: &mut Vec<u32>,
+) -> bool {
+    index.within_into(p, radius as f32, near);
+    Spread::of(near.iter().map(|&k| &points[k as usize]))
+        .and_then(|s| s.ribbon_axis())
+        .is_some()
+}
+
+/// The scene's rims: the samples of `samples` whose neighbourhood in `world` within
+/// `radius` (mm) is a ribbon, where those within a quarter of `diameter` (mm) form a flat
+/// profile facing the sensor at `viewpoint`, with the profile's normal (what votes over the
+/// rim table); and every point of `world` within `radius` of a ribbon sample whose own
+/// neighbourhood is a ribbon (what rim poses are aligned on).
+pub(crate) fn scene_rims(
+    world: &[Point],
+    samples: &OrientedPoints,
+    radius: f64,
+    diameter: f64,
+    viewpoint: [f64; 3],
+) -> Result<(OrientedPoints, Vec<Point>)> {
+    use rayon::prelude::*;
+    if world.is_empty() || samples.is_empty() {
+        return Ok((OrientedPoints::default(), Vec::new()));
+    }
+    let vp = nalgebra::Vector3::from(viewpoint);
+    let index = PointIndex::new("scene", world).map_err(matching("scene rims"))?;
+    let ribbon = |p: &Point, near: &mut Vec<u32>| is_ribbon(world, &index, p, radius, near);
+    let on_rim: Vec<bool> = samples
+        .points
+        .par_iter()
+        .map_init(Vec::new, |near, p| ribbon(p, near))
+        .collect();
+    let rim_points: Vec<Point> = (0..samples.len())
+        .filter(|&i| on_rim[i])
+        .map(|i| samples.points[i])
+        .collect();
+    let ribbons = match PointIndex::new("rims", &rim_points) {
+        Ok(rims) => {
+            let near_rim = (radius * radius) as f32;
+            world
+                .par_iter()
+                .map_init(Vec::new, |near, p| {
+                    (rims.nearest(p).1 <= near_rim && ribbon(p, near)).then_some(*p)
+                })
+                .flatten()
+                .collect()
+        }
+        Err(_) => Vec::new(),
+    };
+    let profiled = profiles(&rim_points, diameter, |k, normal| {
+        let to_sensor = (vp - vector(&rim_points[k])).normalize();
+        let c = normal.dot(&to_sensor);
+        (c.abs() > RIM_FACING_COS).then(|| normal * c.signum())
+    });
+    Ok((profiled, ribbons))
+}
+
+/// The points of `rim` that lie in a flat profile of their neighbours within a quarter of
+/// `diameter`, with the normal `orient` gives the profile's (None drops the point).
+fn profiles(
+    rim: &[Point],
+    diameter: f64,
+    orient: impl Fn(usize, nalgebra::Vector3<f64>) -> Option<nalgebra::Vector3<f64>> + Sync,
+) -> OrientedPoints {
+    use rayon::prelude::*;
+    let Ok(index) = PointIndex::new("rims", rim) else {
+        return OrientedPoints::default();
+    };
+    let radius = (RIM_PROFILE_DIAMETERS * diameter) as f32;
+    let normals: Vec<Option<nalgebra::Vector3<f64>>> = rim
+        .par_iter()
+        .enumerate()
+        .map_init(Vec::new, |near, (k, p)| {
+            index.within_into(p, radius, near);
+            Spread::of(near.iter().map(|&j| &rim[j as usize]))
+                .and_then(|s| s.profile_normal())
+                .and_then(|n| orient(k, n))
+        })
+        .collect();
+    let (points, normals) = rim
+        .iter()
+        .zip(normals)
+        .filter_map(|(p, n)| n.map(|n| (*p, [n.x as f32, n.y as f32, n.z as f32])))
+        .unzip();
+    OrientedPoints { points, normals }
+}
+
 /// The scene's samples at the sampling step (the `world` points with their normals);
 /// samples without a normal are dropped.
 pub(crate) fn scene_samples(world: OrientedPoints, scale: &DerivedScale) -> Result<OrientedPoints> {
     Ok(subsample(&world, scale.sampling_step_mm)?.with_defined_normals())
 }
 
-/// Votes over the scene samples and the strongest pose clusters, best first.
+/// Votes over the scene samples and the strongest pose clusters, best first; then, when
+/// the part has rims, the strongest of the rim samples' own votes over the rim table.
 pub(crate) fn vote(
+    model: &VotingModel,
+    part: &Part,
+    samples: &OrientedPoints,
+    rim_samples: &OrientedPoints,
+    scale: &DerivedScale,
+    cfg: &VotingConfig,
+) -> Result<Voted> {
+    let (votes, mut clusters) = vote_table(&model.table, model, part, samples, scale, cfg)?;
+    clusters.truncate(cfg.hypotheses);
+    let first_rim = clusters.len();
+    let Some(rims) = &model.rims else {
+        return Ok(Voted {
+            votes,
+            clusters,
+            first_rim,
+        });
+    };
+    let (rim_votes, mut rim_clusters) = vote_table(rims, model, part, rim_samples, scale, cfg)?;
+    rim_clusters.truncate(cfg.rim_hypotheses);
+    clusters.extend(rim_clusters);
+    Ok(Voted {
+        votes: votes + rim_votes,
+        clusters,
+        first_rim,
+    })
+}
+
+/// The hypotheses of one voting round.
+pub(crate) struct Voted {
+    /// Votes cast.
+    pub votes: usize,
+    /// Pose clusters, the whole part's best first, then the rims'.
+    pub clusters: Vec<PoseCluster>,
+    /// `clusters[first_rim..]` came from the rims.
+    pub first_rim: usize,
+}
+
+fn vote_table(
+    table: &PpfModel,
     model: &VotingModel,
     part: &Part,
     samples: &OrientedPoints,
@@ -252,8 +477,7 @@ pub(crate) fn vote(
         return Ok((0, Vec::new()));
     }
     let index = PointIndex::new("scene samples", &samples.points).map_err(matching("scene"))?;
-    let votes = model
-        .table
+    let votes = table
         .vote(
             samples,
             &index,
@@ -264,7 +488,7 @@ pub(crate) fn vote(
             },
         )
         .map_err(matching("voting"))?;
-    let mut clusters = cluster_poses(
+    let clusters = cluster_poses(
         &votes,
         &model.centre,
         &part.symmetries,
@@ -274,7 +498,6 @@ pub(crate) fn vote(
         },
     )
     .map_err(matching("pose clustering"))?;
-    clusters.truncate(cfg.hypotheses);
     Ok((votes.len(), clusters))
 }
 
@@ -402,5 +625,88 @@ mod tests {
                 "{k}"
             );
         }
+    }
+
+    /// An L-shaped sheet 2 mm thick: a 30 mm leg along x and a 25 mm leg up z, 40 mm wide
+    /// along y; every face sampled at 1 mm with its outward normal. Its two 2 mm edges along
+    /// the L (the faces at y = 0 and y = 40) are its rims.
+    fn angle_sheet() -> OrientedPoints {
+        let mut points = Vec::new();
+        let mut normals = Vec::new();
+        // The profile: (x, z) along the L and the in-plane normal there.
+        let mut profile = Vec::new();
+        for i in 0..=30 {
+            profile.push(([i as f32, 0.0], [0.0f32, 1.0]));
+        }
+        for k in 1..=25 {
+            profile.push(([30.0, k as f32], [-1.0, 0.0]));
+        }
+        for &([x, z], [nx, nz]) in &profile {
+            for t in [-1.0f32, 0.0, 1.0] {
+                for (y, ny) in [(0.0f32, -1.0f32), (40.0, 1.0)] {
+                    points.push([x + t * nx, y, z + t * nz]);
+                    normals.push([0.0, ny, 0.0]);
+                }
+            }
+            for j in 1..40 {
+                for side in [-1.0f32, 1.0] {
+                    points.push([x + side * nx, j as f32, z + side * nz]);
+                    normals.push([side * nx, 0.0, side * nz]);
+                }
+            }
+        }
+        OrientedPoints { points, normals }
+    }
+
+    #[test]
+    fn a_sheet_edge_is_a_rim_with_its_face_normal_and_a_wide_face_is_not() {
+        let sheet = angle_sheet();
+        let (rims, on_rim) = model_rims(&sheet, 5.0, 60.0).unwrap();
+        assert_eq!(on_rim.len(), sheet.len());
+        assert!(rims.len() > 60, "{} rim points", rims.len());
+        for (p, n) in rims.points.iter().zip(&rims.normals) {
+            // On an edge, facing as that edge does.
+            let outward = if p[1] < 20.0 { -1.0 } else { 1.0 };
+            assert!(p[1] == 0.0 || p[1] == 40.0, "{p:?}");
+            assert!(n[1] * outward > 0.99, "{p:?}: {n:?}");
+        }
+        // The wide faces away from the edges are not rims.
+        for (k, p) in sheet.points.iter().enumerate() {
+            if (5.0..=35.0).contains(&p[1]) {
+                assert!(!on_rim[k], "{p:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_scene_sees_a_rim_where_an_edge_faces_it_and_not_on_a_wide_face() {
+        // The sheet lying on its side, its y = 40 edge up, seen from above: the edge (an L
+        // strip 3 points wide) and, beside it, a wide face seen flat on.
+        let sheet = angle_sheet();
+        let mut world: Vec<Point> = sheet
+            .points
+            .iter()
+            .zip(&sheet.normals)
+            .filter(|(p, n)| p[1] == 40.0 && n[1] > 0.5)
+            .map(|(p, _)| [p[0], p[2], p[1]])
+            .collect();
+        let strip = world.len();
+        for i in 0..30 {
+            for j in 0..30 {
+                world.push([60.0 + i as f32, j as f32, 20.0]);
+            }
+        }
+        let samples = OrientedPoints {
+            points: world.iter().step_by(3).copied().collect(),
+            normals: vec![[0.0, 0.0, 1.0]; world.len().div_ceil(3)],
+        };
+        let (rims, ribbons) = scene_rims(&world, &samples, 5.0, 60.0, [0.0, 0.0, 1e6]).unwrap();
+        assert!(rims.len() > 10, "{} rim samples", rims.len());
+        for (p, n) in rims.points.iter().zip(&rims.normals) {
+            assert!(p[0] < 40.0, "{p:?}");
+            assert!(n[2] > 0.99, "{p:?}: {n:?}");
+        }
+        assert!(ribbons.len() > strip / 2, "{} of {strip}", ribbons.len());
+        assert!(ribbons.iter().all(|p| p[0] < 40.0));
     }
 }

@@ -13,7 +13,7 @@ use binpick_pcl::{IcpParams, IndexedCloud};
 use crate::error::{Result, input, pcl};
 use crate::params::{SensorConfig, VerifyConfig};
 use crate::result::{DerivedScale, ViewCheck};
-use crate::stages::hypotheses::{VotingModel, matching};
+use crate::stages::hypotheses::{VotingModel, is_ribbon, matching};
 use crate::validate::{NearestIndex, euclidean_score, outlier_percent};
 
 /// A camera is assumed at the origin when the scene's centre lies this many scene extents
@@ -103,12 +103,26 @@ pub(crate) struct SceneSurface {
     pub view_normals: Vec<[f32; 3]>,
     /// ... and whether it is support (belt, floor, wall).
     pub support: Vec<bool>,
+    /// The points (not support) whose neighbourhood is a ribbon (`view_normals`).
+    pub ribbons: Vec<Point>,
     /// The points that are not support.
     pub world: Vec<Point>,
     /// The support planes found in preprocessing that bound the parts, unit normal towards
     /// them and offset (mm): [`bounding_planes`].
     pub bounding: Vec<(Vector3<f64>, f64)>,
 }
+
+/// Fewer scene ribbon points or visible model rim points than this: no rim refinement.
+const MIN_RIBBON_POINTS: usize = 10;
+
+/// An edge-on pose whose outline the scene carries on past needs this share of its visible
+/// rims on the scene's ribbons (measured: strips laid on faces 0-2 %, parts on their edge
+/// 23-96 %).
+const MIN_ON_RIBBONS: f64 = 0.1;
+
+/// A pose that would show the sensor at most this share of the part's typical view shows
+/// an edge (a Z bracket on its side: 4-8 %).
+const EDGE_ON_VIEW_SHARE: f64 = 0.2;
 
 /// Everything verification reads, built once per scene.
 pub(crate) struct Verifier<'a> {
@@ -117,6 +131,10 @@ pub(crate) struct Verifier<'a> {
     /// The scene without its support, at the working resolution: the ICP target.
     world: IndexedCloud,
     world_index: NearestIndex,
+    /// The scene's ribbons, when the part has rims: the ICP target of rim hypotheses ...
+    ribbons: Option<IndexedCloud>,
+    /// The points of `world`.
+    world_points: Vec<Point>,
     model: &'a VotingModel,
     scale: &'a DerivedScale,
     cfg: &'a VerifyConfig,
@@ -172,6 +190,12 @@ impl<'a> Verifier<'a> {
             grid,
             view,
             world: IndexedCloud::new(&scene.world).map_err(pcl("scene upload"))?,
+            ribbons: if model.rims.is_some() && scene.ribbons.len() >= MIN_RIBBON_POINTS {
+                Some(IndexedCloud::new(&scene.ribbons).map_err(pcl("scene upload"))?)
+            } else {
+                None
+            },
+            world_points: scene.world.clone(),
             world_index: NearestIndex::new("scene", &scene.world)
                 .map_err(|e| input("scene", e.to_string()))?,
             model,
@@ -244,6 +268,88 @@ impl<'a> Verifier<'a> {
         Ok((pose, last))
     }
 
+    /// ICP of the part's visible rims onto the scene's ribbons, in two passes as
+    /// [`Verifier::refine`]: a part lying on its sheet's edge shows the sensor a strip a few
+    /// points wide, which ICP onto the whole scene slides onto its neighbours' surfaces.
+    /// None without rims or when too few rim points are visible.
+    pub(crate) fn refine_rim(&self, pose: &Isometry3<f64>) -> Result<Option<Isometry3<f64>>> {
+        let Some(ribbons) = &self.ribbons else {
+            return Ok(None);
+        };
+        let mut pose = *pose;
+        let mut moved = false;
+        for distance in [
+            2.0 * self.scale.sampling_step_mm,
+            2.0 * self.scale.tolerance_mm,
+        ] {
+            let idx: Vec<u32> = self
+                .grid
+                .visible_model_points(&self.model.dense, &pose, &self.view)
+                .into_iter()
+                .filter(|&i| self.model.rim_points[i as usize])
+                .collect();
+            let src = self.strided(&idx, ICP_POINTS);
+            if src.len() < MIN_RIBBON_POINTS {
+                break;
+            }
+            let out = self.icp_onto(ribbons, &src, &pose, distance, self.cfg.refine_iterations)?;
+            if let Some(p) = out.pose() {
+                pose = p;
+                moved = true;
+            }
+        }
+        Ok(moved.then_some(pose))
+    }
+
+    /// Whether `pose` (scored `score`) shows the sensor an edge laid on a wider surface: it
+    /// would show little ([`EDGE_ON_VIEW_SHARE`] of its typical view) and some rims, the
+    /// scene carries on past more than `max_continued` of its outline, and under
+    /// [`MIN_ON_RIBBONS`] of those rims meet a ribbon in the scene (within two tolerances).
+    /// A real part on its edge is a ribbon in the scan; a strip laid along a flat face is
+    /// not, and such strips side by side explain each other's outlines. Always false for a
+    /// part without rims.
+    pub(crate) fn edge_on_a_surface(&self, pose: &Isometry3<f64>, score: &ViewScore) -> bool {
+        if self.model.rim_points.is_empty()
+            || f64::from(score.visible) > edge_on_cells(self.scale)
+            || f64::from(score.outline_continued)
+                <= self.cfg.max_continued * f64::from(score.outline_edges)
+        {
+            return false;
+        }
+        let visible = self
+            .grid
+            .visible_model_points(&self.model.dense, pose, &self.view);
+        let rims: Vec<Point> = visible
+            .iter()
+            .filter(|&&i| self.model.rim_points[i as usize])
+            .map(|&i| {
+                let p = self.model.dense.points[i as usize];
+                let q = pose * Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+                [q.x as f32, q.y as f32, q.z as f32]
+            })
+            .collect();
+        if rims.is_empty() {
+            return false;
+        }
+        let near = (2.0 * self.scale.tolerance_mm).powi(2) as f32;
+        let mut buf = Vec::new();
+        let on = rims
+            .iter()
+            .filter(|p| {
+                let (k, d2) = self.world_index.nearest(p);
+                d2 <= near
+                    && is_ribbon(
+                        &self.world_points,
+                        &self.world_index,
+                        &self.world_points[k],
+                        self.scale.sampling_step_mm,
+                        &mut buf,
+                    )
+            })
+            .count();
+        (on as f64) < MIN_ON_RIBBONS * rims.len() as f64
+    }
+
     /// One fine ICP pass (correspondences within two tolerances) on the visible surface less
     /// what the scene hides by more than a tolerance: a part under its neighbours is
     /// otherwise pulled towards them. Meant for a pose already refined: from farther off,
@@ -272,8 +378,20 @@ impl<'a> Verifier<'a> {
         distance: f64,
         iterations: u32,
     ) -> Result<binpick_pcl::IcpOutcome> {
+        self.icp_onto(&self.world, src, pose, distance, iterations)
+    }
+
+    /// PCL's ICP of the model points `src` onto `target` from `pose`.
+    fn icp_onto(
+        &self,
+        target: &IndexedCloud,
+        src: &[Point],
+        pose: &Isometry3<f64>,
+        distance: f64,
+        iterations: u32,
+    ) -> Result<binpick_pcl::IcpOutcome> {
         let w = self.scale.resolution_mm;
-        self.world
+        target
             .icp(
                 src,
                 &IcpParams {
@@ -326,8 +444,18 @@ impl<'a> Verifier<'a> {
 
     /// Cells of the model's typical view (its view area over the cell area).
     pub(crate) fn typical_cells(&self) -> f64 {
-        self.scale.part_view_area_mm2 / (self.scale.cell_mm * self.scale.cell_mm)
+        typical_cells(self.scale)
     }
+}
+
+/// Cells of the part's typical view at `scale` (its view area over the cell area).
+pub(crate) fn typical_cells(scale: &DerivedScale) -> f64 {
+    scale.part_view_area_mm2 / (scale.cell_mm * scale.cell_mm)
+}
+
+/// A pose showing fewer view cells than this at `scale` shows the sensor an edge.
+pub(crate) fn edge_on_cells(scale: &DerivedScale) -> f64 {
+    EDGE_ON_VIEW_SHARE * typical_cells(scale)
 }
 
 /// How far behind a support plane a model point counts as sunk, mm.
