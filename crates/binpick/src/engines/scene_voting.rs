@@ -356,7 +356,8 @@ impl SceneVoting<'_> {
         // taken part was verified against the view); the others are dropped. Hypotheses are
         // taken up best voted first, so those verified so far are the likeliest parts.
         let verified = in_order(&voted.clusters, |i, h| {
-            // A rim's pose is first aligned on the scene's ribbons alone.
+            // A rim's pose is first aligned on the scene's ribbons alone; refinement and the
+            // report start from there.
             let rim = if i >= voted.first_rim {
                 verifier.refine_rim(&h.pose)
             } else {
@@ -413,9 +414,8 @@ impl SceneVoting<'_> {
     }
 
     /// `candidates` less the edge-on poses laid on a wider surface
-    /// ([`Verifier::edge_on_a_surface`]): their outline fails in their own right, whatever
-    /// other strips beside them explain.
-    /// With how many were dropped.
+    /// ([`Verifier::edge_on_a_surface`]), and how many those were: their outline fails in
+    /// their own right, whatever other strips beside them explain.
     fn off_surfaces(verifier: &Verifier, candidates: Vec<Candidate>) -> (Vec<Candidate>, usize) {
         let laid: Vec<bool> = candidates
             .par_iter()
