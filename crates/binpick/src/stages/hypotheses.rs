@@ -41,10 +41,8 @@ pub(crate) struct VotingModel {
     /// The part's surface at the working resolution (what is rendered and aligned).
     pub dense: OrientedPoints,
     pub table: PpfModel,
-    /// The point pairs of the part's rims ([`model_rims`]), when it has some.
-    pub rims: Option<PpfModel>,
-    /// Per point of `dense`: it lies on a rim (empty without a rim table).
-    pub rim_points: Vec<bool>,
+    /// The part's rims ([`model_rims`]), when it has some.
+    pub rims: Option<Rims>,
     /// Centroid of the surface, model frame.
     pub centre: Point3<f64>,
     /// Half-turns about the principal axes that map the part nearly onto itself.
@@ -72,11 +70,13 @@ impl VotingModel {
             model_rims(&dense, scale.sampling_step_mm, part.size.diameter_mm)?;
         let rim_samples = subsample_by_facing(&rim_profiles, scale.sampling_step_mm);
         let rims = if cfg.rim_hypotheses > 0 && rim_samples.len() >= MIN_RIM_SAMPLES {
-            Some(PpfModel::new(&rim_samples, pairs).map_err(matching("model rim pairs"))?)
+            Some(Rims {
+                table: PpfModel::new(&rim_samples, pairs).map_err(matching("model rim pairs"))?,
+                on_rim,
+            })
         } else {
             None
         };
-        let rim_points = if rims.is_some() { on_rim } else { Vec::new() };
         let kp: Vec<Point> = binpick_cloud::strided_points(&dense.points, SYMMETRY_SAMPLE_POINTS)
             .iter()
             .map(|p| [p.x as f32, p.y as f32, p.z as f32])
@@ -111,10 +111,18 @@ impl VotingModel {
             dense,
             table,
             rims,
-            rim_points,
             near_symmetries,
         })
     }
+}
+
+/// A part's rims: the point pairs of their profiles and which points of the dense surface
+/// lie on them.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub(crate) struct Rims {
+    pub table: PpfModel,
+    /// Per point of [`VotingModel::dense`]: it lies on a rim.
+    pub on_rim: Vec<bool>,
 }
 
 /// `points` thinned by PCL's `UniformSampling` at `leaf` (the point nearest each cell's
@@ -445,7 +453,8 @@ pub(crate) fn vote(
             first_rim,
         });
     };
-    let (rim_votes, mut rim_clusters) = vote_table(rims, model, part, rim_samples, scale, cfg)?;
+    let (rim_votes, mut rim_clusters) =
+        vote_table(&rims.table, model, part, rim_samples, scale, cfg)?;
     rim_clusters.truncate(cfg.rim_hypotheses);
     clusters.extend(rim_clusters);
     Ok(Voted {

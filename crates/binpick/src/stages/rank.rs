@@ -317,6 +317,12 @@ mod tests {
         d
     }
 
+    /// `d` with its view check changed by `change`.
+    fn with_view(mut d: Detection, change: impl FnOnce(&mut ViewCheck)) -> Detection {
+        change(d.view.as_mut().expect("a view check"));
+        d
+    }
+
     #[test]
     fn support_and_free_space_do_not_count_for_the_pick_order() {
         // 0: the highest and 94 % confirmed, but 44 % of that by the bin floor (a wrong pose
@@ -355,10 +361,10 @@ mod tests {
         // and 142 deg off, every visible cell confirmed at a mean fit of 0.84 and 20 mm
         // higher than the right plate (confirmed at 0.95). On visibility alone both are in the
         // top band and the higher one goes first.
-        let mut d = vec![seen(0, 1.0, 0.0, 0.0, 38.1), seen(1, 1.0, 0.0, 0.0, 18.0)];
-        for (x, fit) in d.iter_mut().zip([0.839, 0.948]) {
-            x.view.as_mut().unwrap().fit = fit;
-        }
+        let mut d = vec![
+            with_view(seen(0, 1.0, 0.0, 0.0, 38.1), |v| v.fit = 0.839),
+            with_view(seen(1, 1.0, 0.0, 0.0, 18.0), |v| v.fit = 0.948),
+        ];
         rank_by_view(&mut d, &RankingConfig::default(), 2.0, 0.0);
         assert_eq!(d[0].found_order().0, 1, "{}", d[0].rank_reason);
         assert!(
@@ -376,14 +382,12 @@ mod tests {
         // clutter, nothing over it, confidence 0.72, 61 mm high. At 3 % covered and bands of
         // 0.1 the wrong pose was picked first.
         let mut d = vec![
-            seen(0, 0.753, 0.0, 0.0, 60.8),
-            seen(1, 0.914, 0.0, 0.0, 5.4),
+            with_view(seen(0, 0.753, 0.0, 0.0, 60.8), |v| v.fit = 0.963),
+            with_view(seen(1, 0.914, 0.0, 0.0, 5.4), |v| {
+                v.fit = 0.874;
+                v.covered = 0.043;
+            }),
         ];
-        for (x, (fit, covered)) in d.iter_mut().zip([(0.963, 0.0), (0.874, 0.043)]) {
-            let v = x.view.as_mut().unwrap();
-            v.fit = fit;
-            v.covered = covered;
-        }
         rank_by_view(&mut d, &RankingConfig::default(), 2.0, 0.0);
         assert_eq!(d[0].found_order().0, 1, "{}", d[0].rank_reason);
         assert!(
@@ -406,12 +410,16 @@ mod tests {
         // edge of its sheet, 75 view cells all confirmed at fit 0.80, free, 20 mm high; a
         // bracket on a broad side, 552 cells, 80 % confirmed at 0.88, free, 42 mm high. By
         // confidence the twin went first.
-        let mut d = vec![seen(0, 0.99, 0.0, 0.0, 20.0), seen(1, 0.80, 0.0, 0.0, 42.0)];
-        for (x, (fit, cells)) in d.iter_mut().zip([(0.80, 75), (0.88, 552)]) {
-            let v = x.view.as_mut().unwrap();
-            v.fit = fit;
-            v.visible_cells = cells;
-        }
+        let mut d = vec![
+            with_view(seen(0, 0.99, 0.0, 0.0, 20.0), |v| {
+                v.fit = 0.80;
+                v.visible_cells = 75;
+            }),
+            with_view(seen(1, 0.80, 0.0, 0.0, 42.0), |v| {
+                v.fit = 0.88;
+                v.visible_cells = 552;
+            }),
+        ];
         rank_by_view(&mut d, &RankingConfig::default(), 2.0, 0.0);
         assert_eq!(d[0].found_order().0, 0, "{}", d[0].rank_reason);
         // A fifth of the bracket's typical view at 2 mm is 215 cells.

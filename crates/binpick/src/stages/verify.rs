@@ -282,13 +282,7 @@ impl<'a> Verifier<'a> {
             2.0 * self.scale.sampling_step_mm,
             2.0 * self.scale.tolerance_mm,
         ] {
-            let idx: Vec<u32> = self
-                .grid
-                .visible_model_points(&self.model.dense, &pose, &self.view)
-                .into_iter()
-                .filter(|&i| self.model.rim_points[i as usize])
-                .collect();
-            let src = self.strided(&idx, ICP_POINTS);
+            let src = self.strided(&self.visible_rims(&pose), ICP_POINTS);
             if src.len() < MIN_RIBBON_POINTS {
                 break;
             }
@@ -301,6 +295,19 @@ impl<'a> Verifier<'a> {
         Ok(moved.then_some(pose))
     }
 
+    /// The model's rim points the sensor would see at `pose` (indices into the dense
+    /// surface; none without rims).
+    fn visible_rims(&self, pose: &Isometry3<f64>) -> Vec<u32> {
+        let Some(rims) = &self.model.rims else {
+            return Vec::new();
+        };
+        self.grid
+            .visible_model_points(&self.model.dense, pose, &self.view)
+            .into_iter()
+            .filter(|&i| rims.on_rim[i as usize])
+            .collect()
+    }
+
     /// Whether `pose` (scored `score`) shows the sensor an edge laid on a wider surface: it
     /// would show little ([`EDGE_ON_VIEW_SHARE`] of its typical view) and some rims, the
     /// scene carries on past more than `max_continued` of its outline, and under
@@ -309,20 +316,17 @@ impl<'a> Verifier<'a> {
     /// not, and such strips side by side explain each other's outlines. Always false for a
     /// part without rims.
     pub(crate) fn edge_on_a_surface(&self, pose: &Isometry3<f64>, score: &ViewScore) -> bool {
-        if self.model.rim_points.is_empty()
+        if self.model.rims.is_none()
             || f64::from(score.visible) > edge_on_cells(self.scale)
             || f64::from(score.outline_continued)
                 <= self.cfg.max_continued * f64::from(score.outline_edges)
         {
             return false;
         }
-        let visible = self
-            .grid
-            .visible_model_points(&self.model.dense, pose, &self.view);
-        let rims: Vec<Point> = visible
-            .iter()
-            .filter(|&&i| self.model.rim_points[i as usize])
-            .map(|&i| {
+        let rims: Vec<Point> = self
+            .visible_rims(pose)
+            .into_iter()
+            .map(|i| {
                 let p = self.model.dense.points[i as usize];
                 let q = pose * Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
                 [q.x as f32, q.y as f32, q.z as f32]
