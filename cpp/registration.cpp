@@ -1,4 +1,5 @@
 // Correspondences, RANSAC rejection, SVD and ICP (pcl_registration, thesis 3.4-3.6).
+#include <pcl/common/transforms.h>
 #include <pcl/registration/correspondence_estimation.h>
 #include <pcl/registration/correspondence_rejection_sample_consensus.h>
 #include <pcl/registration/icp.h>
@@ -102,6 +103,44 @@ class BatchCorrespondenceEstimation
  private:
   const BatchIndex* index_;
 };
+
+// Registration::getFitnessScore(max_range) with the same answer: the mean squared distance
+// of the aligned source points whose nearest target point lies within `max_range` (PCL
+// compares the squared distance with it, so that is the bound here too). PCL walks the tree
+// to each point's nearest neighbour however far; a search bounded at `max_range` skips the
+// far branches, and a point beyond it is not counted either way. Same points, same order,
+// same float distances: the same sum.
+double bounded_fitness(const BatchIndex& index, const PointCloudXYZ& source,
+                       const Eigen::Matrix4d& transformation, double max_range) {
+  PointCloudXYZ aligned;
+  pcl::transformPointCloud(source, aligned, transformation);
+  const std::size_t n = aligned.size();
+  if (n == 0) return std::numeric_limits<double>::max();
+  std::vector<float> queries(n * 3);
+  for (std::size_t i = 0; i < n; ++i) {
+    queries[3 * i] = aligned[i].x;
+    queries[3 * i + 1] = aligned[i].y;
+    queries[3 * i + 2] = aligned[i].z;
+  }
+  std::vector<int> nn(n, -1);
+  std::vector<float> d2(n);
+  flann::Matrix<int> nn_mat(nn.data(), n, 1);
+  flann::Matrix<float> d2_mat(d2.data(), n, 1);
+  const float bound =
+      std::nextafter(static_cast<float>(max_range), std::numeric_limits<float>::infinity());
+  flann::SearchParams params(-1, 0.0f);
+  params.max_neighbors = 1;
+  index.index->radiusSearch(flann::Matrix<float>(queries.data(), n, 3), nn_mat, d2_mat, bound,
+                            params);
+  double sum = 0.0;
+  int counted = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (nn[i] < 0 || !(d2[i] <= max_range)) continue;
+    sum += d2[i];
+    ++counted;
+  }
+  return counted > 0 ? sum / counted : std::numeric_limits<double>::max();
+}
 
 using FeatureCloud = pcl::PointCloud<pcl::FPFHSignature33>;
 
@@ -409,7 +448,10 @@ IcpResult icp_align(const Cloud& target, rust::Slice<const float> source_xyz,
   IcpResult out;
   out.converged = icp.hasConverged();
   to_row_major(icp.getFinalTransformation(), out.transform);
-  out.fitness = icp.getFitnessScore(params.max_correspondence_distance);
+  out.fitness = params.batch_correspondences
+                    ? bounded_fitness(batch_index(t), *src, icp.getFinalTransformation(),
+                                      params.max_correspondence_distance)
+                    : icp.getFitnessScore(params.max_correspondence_distance);
   out.iterations = static_cast<std::uint32_t>(std::max(icp.iterations(), 0));
   out.state = static_cast<std::int32_t>(icp.getConvergeCriteria()->getConvergenceState());
   return out;
