@@ -331,7 +331,7 @@ impl SceneVoting<'_> {
 
         let detections = explanation
             .taken
-            .iter()
+            .par_iter()
             .map(|&i| self.detection(&verifier, &candidates[i]))
             .collect();
         Ok(VotingFound {

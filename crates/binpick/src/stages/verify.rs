@@ -164,14 +164,43 @@ impl<'a> Verifier<'a> {
         cfg: &'a VerifyConfig,
     ) -> Result<Self> {
         let view = view_config(scale, cfg);
-        let grid = RangeGrid::new(
-            sensor,
-            &view,
-            &scene.points,
-            &scene.support,
-            Some(&scene.view_normals),
-        )
-        .map_err(matching("view grid"))?;
+        // The view grid and the scene's search trees are independent: built side by side.
+        let (grid, (world, (ribbons, world_index))) = rayon::join(
+            || {
+                RangeGrid::new(
+                    sensor,
+                    &view,
+                    &scene.points,
+                    &scene.support,
+                    Some(&scene.view_normals),
+                )
+                .map_err(matching("view grid"))
+            },
+            || {
+                rayon::join(
+                    || IndexedCloud::new(&scene.world).map_err(pcl("scene upload")),
+                    || {
+                        rayon::join(
+                            || {
+                                if model.rims.is_some() && scene.ribbons.len() >= MIN_RIBBON_POINTS
+                                {
+                                    IndexedCloud::new(&scene.ribbons)
+                                        .map(Some)
+                                        .map_err(pcl("scene upload"))
+                                } else {
+                                    Ok(None)
+                                }
+                            },
+                            || {
+                                NearestIndex::new("scene", &scene.world)
+                                    .map_err(|e| input("scene", e.to_string()))
+                            },
+                        )
+                    },
+                )
+            },
+        );
+        let grid = grid?;
         let on_plane = scale.support_distance_mm;
         let support_explained = grid.background_cells(|p| {
             let q = Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
@@ -189,15 +218,10 @@ impl<'a> Verifier<'a> {
             ),
             grid,
             view,
-            world: IndexedCloud::new(&scene.world).map_err(pcl("scene upload"))?,
-            ribbons: if model.rims.is_some() && scene.ribbons.len() >= MIN_RIBBON_POINTS {
-                Some(IndexedCloud::new(&scene.ribbons).map_err(pcl("scene upload"))?)
-            } else {
-                None
-            },
+            world: world?,
+            ribbons: ribbons?,
             world_points: scene.world.clone(),
-            world_index: NearestIndex::new("scene", &scene.world)
-                .map_err(|e| input("scene", e.to_string()))?,
+            world_index: world_index?,
             model,
             scale,
             cfg,
