@@ -46,6 +46,41 @@ const BatchIndex& batch_index(const Cloud::Impl& cloud) {
 
 namespace {
 
+// Each point's nearest neighbour in `index` whose squared distance is at most `max_sqr`
+// (index -1 when there is none), in one FLANN call. A search bounded this way prunes every
+// branch farther away, where PCL's unbounded one first walks to whatever is nearest however
+// far; both keep the first of equally near points in the same tree order. FLANN's bound is
+// exclusive and in float: one float step wider, then PCL's inclusive test in double.
+struct Nearest {
+  std::vector<int> index;
+  std::vector<float> distance_sqr;
+};
+
+template <typename Points, typename Get>
+Nearest nearest_within(const BatchIndex& index, std::size_t n, const Points& points, Get get,
+                       double max_sqr) {
+  std::vector<float> queries(n * 3);
+  for (std::size_t i = 0; i < n; ++i) {
+    const pcl::PointXYZ& p = get(points, i);
+    queries[3 * i] = p.x;
+    queries[3 * i + 1] = p.y;
+    queries[3 * i + 2] = p.z;
+  }
+  Nearest out{std::vector<int>(n, -1), std::vector<float>(n)};
+  flann::Matrix<int> nn_mat(out.index.data(), n, 1);
+  flann::Matrix<float> d2_mat(out.distance_sqr.data(), n, 1);
+  const float bound =
+      std::nextafter(static_cast<float>(max_sqr), std::numeric_limits<float>::infinity());
+  flann::SearchParams params(-1, 0.0f);  // as pcl::KdTreeFLANN: exact, one core
+  params.max_neighbors = 1;
+  index.index->radiusSearch(flann::Matrix<float>(queries.data(), n, 3), nn_mat, d2_mat, bound,
+                            params);
+  for (std::size_t i = 0; i < n; ++i) {
+    if (out.index[i] >= 0 && !(out.distance_sqr[i] <= max_sqr)) out.index[i] = -1;
+  }
+  return out;
+}
+
 // PCL's CorrespondenceEstimation with the same answers, but one FLANN call per ICP iteration
 // instead of one per source point: PCL's per-point path enters an OpenMP region and allocates
 // for every query, which made that overhead most of ICP's time. Nearest neighbours come from
@@ -60,35 +95,19 @@ class BatchCorrespondenceEstimation
     check_interrupt("ICP iteration");  // once per ICP iteration
     if (!initCompute()) return;
     const std::size_t n = indices_->size();
-    std::vector<float> queries(n * 3);
-    for (std::size_t i = 0; i < n; ++i) {
-      const auto& p = (*input_)[(*indices_)[i]];
-      queries[3 * i] = p.x;
-      queries[3 * i + 1] = p.y;
-      queries[3 * i + 2] = p.z;
-    }
-    std::vector<int> nn(n);
-    std::vector<float> d2(n);
-    flann::Matrix<int> nn_mat(nn.data(), n, 1);
-    flann::Matrix<float> d2_mat(d2.data(), n, 1);
-    // The nearest neighbour within the correspondence distance only: a search bounded by
-    // it prunes every branch farther away, where the unbounded one (PCL's) first walks to
-    // whatever is nearest however far. Both keep the first of equally near points in the same
-    // tree order, so the correspondences kept are PCL's. FLANN's bound is exclusive and in
-    // squared float distance: one float step wider, then PCL's inclusive test in double.
-    const double max_dist_sqr = max_distance * max_distance;
-    const float bound = std::nextafter(static_cast<float>(max_dist_sqr),
-                                       std::numeric_limits<float>::infinity());
-    flann::SearchParams params(-1, 0.0f);  // as pcl::KdTreeFLANN: exact, one core
-    params.max_neighbors = 1;
-    std::fill(nn.begin(), nn.end(), -1);
-    index_->index->radiusSearch(flann::Matrix<float>(queries.data(), n, 3), nn_mat, d2_mat, bound,
-                                params);
+    // Within the correspondence distance only: the correspondences PCL would keep.
+    const Nearest near = nearest_within(
+        *index_, n, *input_,
+        [this](const PointCloudXYZ& cloud, std::size_t i) -> const pcl::PointXYZ& {
+          return cloud[(*indices_)[i]];
+        },
+        max_distance * max_distance);
     correspondences.resize(n);
     std::size_t valid = 0;
     for (std::size_t i = 0; i < n; ++i) {
-      if (nn[i] < 0 || !(d2[i] <= max_dist_sqr)) continue;
-      correspondences[valid++] = pcl::Correspondence((*indices_)[i], nn[i], d2[i]);
+      if (near.index[i] < 0) continue;
+      correspondences[valid++] =
+          pcl::Correspondence((*indices_)[i], near.index[i], near.distance_sqr[i]);
     }
     correspondences.resize(valid);
     deinitCompute();
@@ -106,37 +125,23 @@ class BatchCorrespondenceEstimation
 
 // Registration::getFitnessScore(max_range) with the same answer: the mean squared distance
 // of the aligned source points whose nearest target point lies within `max_range` (PCL
-// compares the squared distance with it, so that is the bound here too). PCL walks the tree
-// to each point's nearest neighbour however far; a search bounded at `max_range` skips the
-// far branches, and a point beyond it is not counted either way. Same points, same order,
-// same float distances: the same sum.
+// compares the squared distance with it, so that is the bound here too). A point beyond it
+// is not counted either way; same points, same order, same float distances: the same sum.
 double bounded_fitness(const BatchIndex& index, const PointCloudXYZ& source,
                        const Eigen::Matrix4d& transformation, double max_range) {
   PointCloudXYZ aligned;
   pcl::transformPointCloud(source, aligned, transformation);
   const std::size_t n = aligned.size();
   if (n == 0) return std::numeric_limits<double>::max();
-  std::vector<float> queries(n * 3);
-  for (std::size_t i = 0; i < n; ++i) {
-    queries[3 * i] = aligned[i].x;
-    queries[3 * i + 1] = aligned[i].y;
-    queries[3 * i + 2] = aligned[i].z;
-  }
-  std::vector<int> nn(n, -1);
-  std::vector<float> d2(n);
-  flann::Matrix<int> nn_mat(nn.data(), n, 1);
-  flann::Matrix<float> d2_mat(d2.data(), n, 1);
-  const float bound =
-      std::nextafter(static_cast<float>(max_range), std::numeric_limits<float>::infinity());
-  flann::SearchParams params(-1, 0.0f);
-  params.max_neighbors = 1;
-  index.index->radiusSearch(flann::Matrix<float>(queries.data(), n, 3), nn_mat, d2_mat, bound,
-                            params);
+  const Nearest near = nearest_within(
+      index, n, aligned,
+      [](const PointCloudXYZ& cloud, std::size_t i) -> const pcl::PointXYZ& { return cloud[i]; },
+      max_range);
   double sum = 0.0;
   int counted = 0;
   for (std::size_t i = 0; i < n; ++i) {
-    if (nn[i] < 0 || !(d2[i] <= max_range)) continue;
-    sum += d2[i];
+    if (near.index[i] < 0) continue;
+    sum += near.distance_sqr[i];
     ++counted;
   }
   return counted > 0 ? sum / counted : std::numeric_limits<double>::max();
