@@ -323,6 +323,18 @@ mod tests {
         d
     }
 
+    /// Ranks `d` by view (2 mm band over the support) and asserts which detection, in found
+    /// order, is picked first.
+    fn assert_first(d: &mut [Detection], cfg: &RankingConfig, edge_on_cells: f64, want: usize) {
+        rank_by_view(d, cfg, 2.0, edge_on_cells);
+        assert_eq!(d[0].found_order().0, want, "{}", d[0].rank_reason);
+    }
+
+    /// Asserts that a rank's reason says `text`.
+    fn assert_reason(d: &Detection, text: &str) {
+        assert!(d.rank_reason.contains(text), "{}", d.rank_reason);
+    }
+
     #[test]
     fn support_and_free_space_do_not_count_for_the_pick_order() {
         // 0: the highest and 94 % confirmed, but 44 % of that by the bin floor (a wrong pose
@@ -365,14 +377,8 @@ mod tests {
             with_view(seen(0, 1.0, 0.0, 0.0, 38.1), |v| v.fit = 0.839),
             with_view(seen(1, 1.0, 0.0, 0.0, 18.0), |v| v.fit = 0.948),
         ];
-        rank_by_view(&mut d, &RankingConfig::default(), 2.0, 0.0);
-        assert_eq!(d[0].found_order().0, 1, "{}", d[0].rank_reason);
-        assert!(
-            d[1].rank_reason
-                .contains("(83.9 %: visibility 100.0 %, fit 0.84"),
-            "{}",
-            d[1].rank_reason
-        );
+        assert_first(&mut d, &RankingConfig::default(), 0.0, 1);
+        assert_reason(&d[1], "(83.9 %: visibility 100.0 %, fit 0.84");
     }
 
     #[test]
@@ -388,8 +394,7 @@ mod tests {
                 v.covered = 0.043;
             }),
         ];
-        rank_by_view(&mut d, &RankingConfig::default(), 2.0, 0.0);
-        assert_eq!(d[0].found_order().0, 1, "{}", d[0].rank_reason);
+        assert_first(&mut d, &RankingConfig::default(), 0.0, 1);
         assert!(
             d[0].rank_reason.starts_with("free (4.3 %"),
             "{}",
@@ -400,8 +405,7 @@ mod tests {
             visibility_band: 0.1,
             ..RankingConfig::default()
         };
-        rank_by_view(&mut d, &old, 2.0, 0.0);
-        assert_eq!(d[0].found_order().0, 0, "{}", d[0].rank_reason);
+        assert_first(&mut d, &old, 0.0, 0);
     }
 
     #[test]
@@ -420,17 +424,10 @@ mod tests {
                 v.visible_cells = 552;
             }),
         ];
-        rank_by_view(&mut d, &RankingConfig::default(), 2.0, 0.0);
-        assert_eq!(d[0].found_order().0, 0, "{}", d[0].rank_reason);
+        assert_first(&mut d, &RankingConfig::default(), 0.0, 0);
         // A fifth of the bracket's typical view at 2 mm is 215 cells.
-        rank_by_view(&mut d, &RankingConfig::default(), 2.0, 215.0);
-        assert_eq!(d[0].found_order().0, 1, "{}", d[0].rank_reason);
-        assert!(
-            d[1].rank_reason
-                .contains("seen edge on (75 view cells, under 215)"),
-            "{}",
-            d[1].rank_reason
-        );
+        assert_first(&mut d, &RankingConfig::default(), 215.0, 1);
+        assert_reason(&d[1], "seen edge on (75 view cells, under 215)");
     }
 
     #[test]
