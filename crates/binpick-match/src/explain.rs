@@ -476,6 +476,31 @@ mod tests {
         assert_eq!(with_box.rejected[1], Some(Rejection::Explained));
     }
 
+    #[test]
+    fn a_pose_inside_a_larger_surface_is_judged_on_the_outline_it_shows() {
+        // A 60 mm box top at z = 10; a cover at z = 20 hides its rows y >= 25. The square
+        // laid at (20, 20) shows its rows y 20-24 inside the box top and hides the rest.
+        let box_top = square(0.0, 0.0, 60.0, 10.0, 1.0);
+        let cover: Vec<P3> = square(0.0, 25.0, 60.0, 20.0, 1.0)
+            .into_iter()
+            .filter(|p| p[1] < 60.0)
+            .collect();
+        let (grid, view, part) = tiles_on_a_belt(box_top.into_iter().chain(cover));
+        let half_hidden = grid.score(&part, &Isometry3::translation(20.0, 20.0, 10.0), &view);
+        // Row y 25 is confirmed by the box top beside it (a cell of lateral slack).
+        assert_eq!(half_hidden.occluded, 280, "rows y 26-39 are hidden");
+        // Shown: the bottom side (20 edges) and six rows of each flank, all inside the box
+        // top. The 48 edges of the hidden outline cannot show a depth edge and do not count.
+        assert_eq!(half_hidden.outline_edges, 32);
+        assert!(
+            half_hidden.continued_ratio() > 0.9,
+            "the box top carries on past all the outline shown: {}",
+            half_hidden.continued_ratio()
+        );
+        let alone = unvoted_squares(&[half_hidden], &grid);
+        assert!(alone.taken.is_empty());
+    }
+
     /// A score explaining grid cells `cells` at fit `fit` each, of `visible` visible cells.
     fn explaining(cells: std::ops::Range<u32>, fit: f32, visible: u32) -> ViewScore {
         let explained_cells: Vec<u32> = cells.collect();

@@ -255,9 +255,12 @@ pub struct ViewScore {
     /// scan in place.
     pub acceptance_fit: f64,
     /// Edges of the model's silhouette (cell sides between a rendered cell and an empty
-    /// one), and those where the scene's surface carries on past the edge at the model's
-    /// depth with the model's orientation (and is not belt or bin): a real part's outline
-    /// coincides with the scene's depth edges, a pose laid across other surfaces does not.
+    /// one) where the scene does not hide the model, and those where the scene's surface
+    /// carries on past the edge at the model's depth with the model's orientation (and is
+    /// not belt or bin): a real part's outline coincides with the scene's depth edges, a
+    /// pose laid across other surfaces does not. Hidden edges cannot show either, so they
+    /// do not count: a plate laid inside a larger sheet with its bent leg tucked under it
+    /// would otherwise dilute its continued outline with the leg's.
     pub outline_edges: u32,
     pub outline_continued: u32,
     /// For each continued edge, the grid cell the scene carries on in: a
@@ -631,7 +634,8 @@ impl RangeGrid {
             ..ViewScore::default()
         };
         let tol = self.tolerance_mm;
-        for cell in &rendered.cells {
+        let mut hidden = vec![false; rendered.cells.len()];
+        for (ci, cell) in rendered.cells.iter().enumerate() {
             let (c, r, m) = (cell.col, cell.row, cell.closeness);
             let t = tol + cell.slack;
             // Best fit among the neighbouring cells (one cell of lateral slack).
@@ -703,6 +707,7 @@ impl RangeGrid {
                 s.wrong_normal += 1;
             } else if front {
                 s.occluded += 1;
+                hidden[ci] = true;
                 let on_outline = on_outline.unwrap_or_else(|| rendered.on_outline(c, r));
                 s.covered += u32::from(front_is_object && !on_outline);
             } else if behind {
@@ -711,16 +716,17 @@ impl RangeGrid {
                 s.missing += 1;
             }
         }
-        self.outline(&rendered, &mut s);
+        self.outline(&rendered, &hidden, &mut s);
         s
     }
 
-    /// Counts the silhouette's edges and those the scene's surface carries on past (two
-    /// cells out, at the edge cell's depth within the tolerance, same orientation, not
-    /// background).
-    fn outline(&self, rendered: &Rendering, s: &mut ViewScore) {
+    /// Counts the silhouette's edges of the cells the scene does not hide (`hidden[i]` for
+    /// `rendered.cells[i]`) and those the scene's surface carries on past (two cells out, at
+    /// the edge cell's depth within the tolerance, same orientation, not background).
+    fn outline(&self, rendered: &Rendering, hidden: &[bool], s: &mut ViewScore) {
         let tol = self.tolerance_mm;
-        for cell in &rendered.cells {
+        let shown = rendered.cells.iter().zip(hidden).filter(|(_, h)| !**h);
+        for (cell, _) in shown {
             for (dc, dr) in SIDES {
                 if !rendered.is_edge(cell.col, cell.row, dc, dr) {
                     continue;
