@@ -44,6 +44,12 @@ pub struct ExplainConfig {
     pub occluded_min_fit: f64,
     /// See `occluded_min_fit`. Range 0-1.
     pub occluded_below_visibility: f64,
+    /// A pose showing at most this many view cells is seen edge on (0 = none is). Range >= 0.
+    pub edge_on_cells: f64,
+    /// The mean fit asked of a pose seen edge on, in place of `fit_needed`'s: a sheet's edge
+    /// is a strip a few cells wide, all outline, where the scan's edge falls beside the
+    /// model's as often as on it. Range 0-1.
+    pub edge_on_min_fit: f64,
     /// Fewest confirmed grid cells (the part must be seen, not guessed). Range >= 1.
     pub min_explained_cells: u32,
     /// Largest share of the model's surface that may lie behind a support plane (the part
@@ -76,6 +82,7 @@ impl ExplainConfig {
             ("min_fit", self.min_fit),
             ("occluded_min_fit", self.occluded_min_fit),
             ("occluded_below_visibility", self.occluded_below_visibility),
+            ("edge_on_min_fit", self.edge_on_min_fit),
             ("max_explained_by_support", self.max_explained_by_support),
             ("max_below_support", self.max_below_support),
             ("max_continued", self.max_continued),
@@ -85,6 +92,9 @@ impl ExplainConfig {
             if !unit(share) {
                 return Err(MatchError::config(name, "expected 0-1"));
             }
+        }
+        if !(self.edge_on_cells.is_finite() && self.edge_on_cells >= 0.0) {
+            return Err(MatchError::config("edge_on_cells", "expected >= 0"));
         }
         if self.min_explained_cells == 0 {
             return Err(MatchError::config("min_explained_cells", "expected >= 1"));
@@ -116,6 +126,16 @@ impl ExplainConfig {
         self.min_fit + (self.occluded_min_fit - self.min_fit).max(0.0) * hidden
     }
 
+    /// The mean fit asked of `s`: `edge_on_min_fit` when it shows an edge
+    /// (`edge_on_cells`), else [`Self::fit_needed`] at its visibility.
+    pub fn fit_needed_by(&self, s: &ViewScore) -> f64 {
+        if f64::from(s.visible) <= self.edge_on_cells {
+            self.edge_on_min_fit
+        } else {
+            self.fit_needed(s.visibility())
+        }
+    }
+
     /// Whether the near-symmetric turns of a pose scored `s` are worth trying: it is
     /// acceptable, or refused as a part voted the wrong way round would be, where its turns
     /// differ: the scene lies beside that flange (a poor fit) or the sensor saw through it
@@ -142,7 +162,7 @@ impl ExplainConfig {
             Some(Rejection::BelowSupport)
         } else if s.support_explained_ratio() > self.max_explained_by_support {
             Some(Rejection::OnSupport)
-        } else if s.mean_acceptance_fit() < self.fit_needed(s.visibility()) {
+        } else if s.mean_acceptance_fit() < self.fit_needed_by(s) {
             Some(Rejection::PoorFit)
         } else {
             None
@@ -399,6 +419,8 @@ mod tests {
             free_space_weight: 2.0,
             min_new_share: 0.5,
             tie_share: 0.0,
+            edge_on_cells: 0.0,
+            edge_on_min_fit: 0.5,
         }
     }
 
@@ -513,6 +535,39 @@ mod tests {
             explained_cells,
             ..ViewScore::default()
         }
+    }
+
+    #[test]
+    fn a_pose_seen_edge_on_is_asked_the_edge_on_fit() {
+        let config = ExplainConfig {
+            min_fit: 0.7,
+            occluded_min_fit: 0.7,
+            edge_on_cells: 60.0,
+            edge_on_min_fit: 0.6,
+            ..square_parts()
+        };
+        // All confirmed at fit 0.65: enough for an edge (60 view cells or fewer), not for a
+        // pose seen broadly.
+        let edge = explaining(0..50, 0.65, 50);
+        let broad = explaining(0..70, 0.65, 70);
+        assert_eq!(config.rejection(&edge), None);
+        assert_eq!(config.rejection(&broad), Some(Rejection::PoorFit));
+        let looser = explaining(0..50, 0.55, 50);
+        assert_eq!(config.rejection(&looser), Some(Rejection::PoorFit));
+        // Off (no pose is an edge): the edge is asked `min_fit`.
+        let off = ExplainConfig {
+            edge_on_cells: 0.0,
+            ..config.clone()
+        };
+        assert_eq!(off.rejection(&edge), Some(Rejection::PoorFit));
+        assert!(
+            ExplainConfig {
+                edge_on_cells: f64::NAN,
+                ..config
+            }
+            .validate()
+            .is_err()
+        );
     }
 
     #[test]

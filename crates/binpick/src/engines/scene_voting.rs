@@ -36,8 +36,8 @@ use crate::stages::hypotheses::{
 use crate::stages::part::Part;
 use crate::stages::rank::height_mm;
 use crate::stages::verify::{
-    Probe, SceneSurface, Verifier, bounding_planes, resolve_sensor, sunk_depth_mm, view_check,
-    viewpoint,
+    Probe, SceneSurface, Verifier, bounding_planes, edge_on_cells, resolve_sensor, sunk_depth_mm,
+    view_check, viewpoint,
 };
 
 /// A scene sample is explained by a taken part within this many view tolerances of its
@@ -609,6 +609,14 @@ impl SceneVoting<'_> {
             free_space_weight: v.free_space_weight,
             min_new_share: v.min_new_share,
             tie_share: v.tie_share,
+            // Only a part with rims: its pose on the edge must then meet the scene's ribbons
+            // (`Verifier::edge_on_a_surface`).
+            edge_on_cells: if self.model.rims.is_some() {
+                edge_on_cells(self.scale)
+            } else {
+                0.0
+            },
+            edge_on_min_fit: v.edge_on_min_fit,
         }
     }
 

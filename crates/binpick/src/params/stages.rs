@@ -506,6 +506,12 @@ stage_config! {
         occluded_min_fit: f64 = 0.85, within(0.0, 1.0, "");
         /// See `occluded_min_fit`.
         occluded_below_visibility: f64 = 0.6, within(0.0, 1.0, "");
+        /// A part with rims seen edge on (showing at most a fifth of its typical view) must
+        /// fit this closely instead: a Z bracket on the 2 mm edge of its sheet is a strip
+        /// one to three cells wide, all outline, and its right poses fitted at 0.55-0.70 in
+        /// the depth bin (Results, "Thirteenth pass"). Such a pose must also meet the scene's
+        /// ribbons with its rims where the scene carries on past its outline.
+        edge_on_min_fit: f64 = 0.6, within(0.0, 1.0, "");
         /// ... judged with a model cell on the part's outline that only a neighbouring
         /// cell's surface explains weighing this much (a quarter elsewhere): the sampled
         /// outline lies up to a cell inside the part's edge. A part standing on a 2 mm sheet
