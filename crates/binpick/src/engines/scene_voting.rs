@@ -609,8 +609,8 @@ impl SceneVoting<'_> {
             free_space_weight: v.free_space_weight,
             min_new_share: v.min_new_share,
             tie_share: v.tie_share,
-            // Only a part with rims: its pose on the edge must then meet the scene's ribbons
-            // (`Verifier::edge_on_a_surface`).
+            // Only a part with rims: its edge must then meet the scene's ribbons where the
+            // scene carries on past its outline (`Verifier::edge_on_a_surface`).
             edge_on_cells: if self.model.rims.is_some() {
                 edge_on_cells(self.scale)
             } else {

@@ -506,12 +506,6 @@ stage_config! {
         occluded_min_fit: f64 = 0.85, within(0.0, 1.0, "");
         /// See `occluded_min_fit`.
         occluded_below_visibility: f64 = 0.6, within(0.0, 1.0, "");
-        /// A part with rims seen edge on (showing at most a fifth of its typical view) must
-        /// fit this closely instead: a Z bracket on the 2 mm edge of its sheet is a strip
-        /// one to three cells wide, all outline, and its right poses fitted at 0.55-0.70 in
-        /// the depth bin (Results, "Thirteenth pass"). Such a pose must also meet the scene's
-        /// ribbons with its rims where the scene carries on past its outline.
-        edge_on_min_fit: f64 = 0.6, within(0.0, 1.0, "");
         /// ... judged with a model cell on the part's outline that only a neighbouring
         /// cell's surface explains weighing this much (a quarter elsewhere): the sampled
         /// outline lies up to a cell inside the part's edge. A part standing on a 2 mm sheet
@@ -519,6 +513,13 @@ stage_config! {
         /// competition and the pick order keep the quarter (they prefer the pose that meets
         /// the scan in place).
         outline_neighbour_weight: f64 = 0.5, within(0.0, 1.0, "");
+        /// A part with rims seen edge on (showing at most a fifth of its typical view) must
+        /// fit this closely (in place of `min_fit` and `occluded_min_fit`): a Z bracket on the
+        /// 2 mm edge of its sheet is a strip one to three cells wide, all outline, and its
+        /// right poses fitted at 0.55-0.70 in the depth bin (Results, "Thirteenth pass").
+        /// Such a pose must also meet the scene's ribbons with its rims where the scene
+        /// carries on past its outline.
+        edge_on_min_fit: f64 = 0.6, within(0.0, 1.0, "");
         /// A part must explain at least this share of the cells the model covers in its
         /// median view (it must be seen, not guessed), and newly explain this share in the
         /// scene explanation. A part on its thinnest side shows little: a Z bracket on the
