@@ -113,6 +113,58 @@ class BatchCorrespondenceEstimation
     deinitCompute();
   }
 
+  // PCL's determineReciprocalCorrespondences, batched: each source point's nearest target
+  // point within the distance, kept when that target point's nearest source point (over the
+  // same source indices, an index built as PCL's KdTreeFLANN) is this one, within the
+  // distance too.
+  void determineReciprocalCorrespondences(pcl::Correspondences& correspondences,
+                                          double max_distance) override {
+    check_interrupt("ICP iteration");
+    if (!initCompute()) return;
+    const std::size_t n = indices_->size();
+    const double max_sqr = max_distance * max_distance;
+    const Nearest near = nearest_within(
+        *index_, n, *input_,
+        [this](const PointCloudXYZ& cloud, std::size_t i) -> const pcl::PointXYZ& {
+          return cloud[(*indices_)[i]];
+        },
+        max_sqr);
+    BatchIndex source;
+    source.xyz.reserve(n * 3);
+    for (std::size_t i = 0; i < n; ++i) {
+      const pcl::PointXYZ& p = (*input_)[(*indices_)[i]];
+      source.xyz.push_back(p.x);
+      source.xyz.push_back(p.y);
+      source.xyz.push_back(p.z);
+    }
+    correspondences.clear();
+    if (n == 0) {
+      deinitCompute();
+      return;
+    }
+    source.index = std::make_unique<flann::Index<flann::L2_Simple<float>>>(
+        flann::Matrix<float>(source.xyz.data(), n, 3), flann::KDTreeSingleIndexParams(15));
+    source.index->buildIndex();
+    std::vector<std::size_t> matched;
+    for (std::size_t i = 0; i < n; ++i) {
+      if (near.index[i] >= 0) matched.push_back(i);
+    }
+    const Nearest back = nearest_within(
+        source, matched.size(), *target_,
+        [&](const PointCloudXYZ& cloud, std::size_t k) -> const pcl::PointXYZ& {
+          return cloud[near.index[matched[k]]];
+        },
+        max_sqr);
+    correspondences.reserve(matched.size());
+    for (std::size_t k = 0; k < matched.size(); ++k) {
+      const std::size_t i = matched[k];
+      if (back.index[k] != static_cast<int>(i)) continue;
+      correspondences.push_back(
+          pcl::Correspondence((*indices_)[i], near.index[i], near.distance_sqr[i]));
+    }
+    deinitCompute();
+  }
+
   typename pcl::registration::CorrespondenceEstimationBase<pcl::PointXYZ, pcl::PointXYZ,
                                                            double>::Ptr
   clone() const override {
@@ -441,6 +493,7 @@ IcpResult icp_align(const Cloud& target, rust::Slice<const float> source_xyz,
   icp.setInputTarget(t.points);
   icp.setSearchMethodTarget(t.tree, /*force_no_recompute=*/true);
   icp.setMaxCorrespondenceDistance(params.max_correspondence_distance);
+  icp.setUseReciprocalCorrespondences(params.reciprocal);
   icp.setMaximumIterations(static_cast<int>(params.max_iterations));
   icp.setTransformationEpsilon(params.transformation_epsilon);
   if (params.relative_mse > 0.0) {

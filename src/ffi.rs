@@ -37,6 +37,8 @@ pub(crate) mod bridge {
         /// Also stop when the mean squared correspondence distance changes by less than this
         /// fraction between iterations (PCL's Euclidean fitness epsilon); 0 = off.
         relative_mse: f64,
+        /// Keep only mutual nearest neighbours (PCL's `setUseReciprocalCorrespondences`).
+        reciprocal: bool,
     }
 
     struct IcpResult {

@@ -414,6 +414,11 @@ pub struct IcpParams {
     /// Also stop when the mean squared correspondence distance changes by less than this
     /// fraction between two iterations (`setEuclideanFitnessEpsilon`); 0 = off (PCL default).
     pub relative_mse: f64,
+    /// Keep only correspondences whose target point has the source point as its own nearest
+    /// source point (`setUseReciprocalCorrespondences`): where the scan samples a steep face
+    /// sparsely, many model points would otherwise pair with its last scan point and pull
+    /// the pose towards it.
+    pub reciprocal: bool,
 }
 
 /// Why ICP stopped (`pcl::registration::DefaultConvergenceCriteria::ConvergenceState`).
@@ -580,6 +585,7 @@ impl IndexedCloud {
             transformation_epsilon: params.transformation_epsilon,
             batch_correspondences: params.batch_correspondences,
             relative_mse: params.relative_mse,
+            reciprocal: params.reciprocal,
         };
         let r = bridge::icp_align(self.cloud(), flat(source), &p).map_err(pcl_err(ICP_CALL))?;
         check_proper(ICP_CALL, &r.transform)?;

@@ -98,6 +98,7 @@ fn icp_recovers_a_known_rigid_transform() {
                 transformation_epsilon: 1e-7,
                 batch_correspondences: true,
                 relative_mse: 0.0,
+                reciprocal: false,
             },
         )
         .unwrap();
@@ -126,7 +127,7 @@ fn batched_icp_correspondences_match_pcl_exactly() {
         })
         .collect();
     let cloud = IndexedCloud::new(&target).unwrap();
-    let run = |batch| {
+    let run = |batch, reciprocal| {
         cloud
             .icp(
                 &model,
@@ -137,16 +138,21 @@ fn batched_icp_correspondences_match_pcl_exactly() {
                     transformation_epsilon: 1e-7,
                     batch_correspondences: batch,
                     relative_mse: 0.0,
+                    reciprocal,
                 },
             )
             .unwrap()
     };
-    let (plain, batched) = (run(false), run(true));
-    assert!(plain.iterations > 5, "{plain:?}");
-    assert_eq!(
-        plain, batched,
-        "identical transform, iterations, fitness and stop reason"
-    );
+    for reciprocal in [false, true] {
+        let (plain, batched) = (run(false, reciprocal), run(true, reciprocal));
+        assert!(plain.iterations > 5, "{plain:?}");
+        assert_eq!(
+            plain, batched,
+            "identical transform, iterations, fitness and stop reason (reciprocal: {reciprocal})"
+        );
+    }
+    // Mutual nearest neighbours are fewer: the runs differ.
+    assert_ne!(run(true, false).transform, run(true, true).transform);
 }
 
 fn fpfh_at(points: &[Point], keypoints: &[u32], viewpoint: Point) -> Vec<[f32; 33]> {
@@ -719,6 +725,7 @@ fn bad_input_is_an_error_not_a_crash() {
                 transformation_epsilon: 1e-7,
                 batch_correspondences: true,
                 relative_mse: 0.0,
+                reciprocal: false,
             },
         )
     };
@@ -737,6 +744,7 @@ fn bad_input_is_an_error_not_a_crash() {
                     transformation_epsilon: 1e-7,
                     batch_correspondences: true,
                     relative_mse: 0.0,
+                    reciprocal: false,
                 }
             )
             .is_err()
@@ -761,6 +769,7 @@ fn the_bridge_survives_calls_from_several_threads() {
         transformation_epsilon: 1e-7,
         batch_correspondences: true,
         relative_mse: 0.0,
+        reciprocal: false,
     };
     let kp = uniform_sampling(&model, 3.0).unwrap();
     let fp = FpfhParams {
@@ -834,6 +843,7 @@ fn interrupts_stop_long_calls_and_change_no_answer() {
         transformation_epsilon: 1e-9,
         batch_correspondences: true,
         relative_mse: 0.0,
+        reciprocal: false,
     };
     let far: Vec<Point> = [[0.0, 0.0, 0.0], [5000.0, 5000.0, 5000.0]]
         .iter()

@@ -488,6 +488,7 @@ mod tests {
                 fitness_mm2: None,
                 adopted: true,
                 unhidden: false,
+                polished: false,
                 error: None,
             },
             height_mm: 0.0,

@@ -207,6 +207,7 @@ fn stages(c: &mut Criterion) {
                         transformation_epsilon: 1e-6 * res * res,
                         batch_correspondences: true,
                         relative_mse: params.verify.refine_relative_mse,
+                        reciprocal: false,
                     },
                 )
                 .expect("icp")

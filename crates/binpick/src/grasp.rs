@@ -396,6 +396,7 @@ mod tests {
                 fitness_mm2: Some(0.1),
                 adopted: true,
                 unhidden: false,
+                polished: false,
                 error: None,
             },
             height_mm: pose.translation.z,

@@ -178,6 +178,7 @@ pub fn inspect_part(part: &Part) -> Result<PartInspection> {
         transformation_epsilon: 1e-6 * spacing_mm * spacing_mm,
         batch_correspondences: true,
         relative_mse: 1e-4,
+        reciprocal: false,
     })?;
     for t in refined {
         let g = gaps(&t);

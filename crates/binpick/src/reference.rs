@@ -232,6 +232,7 @@ fn convert(r: ReferenceResult, p: &Params) -> Result<ReferenceRun> {
                     .flatten(),
                 adopted: d.icp_adopted,
                 unhidden: false,
+                polished: false,
                 error,
             },
             height_mm: height_mm(&pose, &final_kp, p.ranking.up),

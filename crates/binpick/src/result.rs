@@ -417,6 +417,11 @@ pub struct IcpReport {
     /// pass's). Absent in results written before it existed: false.
     #[serde(default)]
     pub unhidden: bool,
+    /// Whether the last pass with mutual nearest neighbours on a taken part (scene voting,
+    /// `polish_pass`) fitted closer and was adopted (`converged`, `iterations` and
+    /// `fitness_mm2` are then that pass's). Absent in older results: false.
+    #[serde(default)]
+    pub polished: bool,
     /// Set when PCL's ICP failed; the initial pose is kept.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
@@ -970,6 +975,7 @@ mod tests {
                 fitness_mm2: Some(0.2),
                 adopted: true,
                 unhidden: false,
+                polished: false,
                 error: None,
             },
             height_mm: 12.0,

@@ -67,6 +67,7 @@ pub(crate) struct SceneVoting<'a> {
 }
 
 /// One verified pose.
+#[derive(Clone)]
 struct Candidate {
     /// Index of the pose cluster it came from.
     hypothesis: usize,
@@ -329,10 +330,14 @@ impl SceneVoting<'_> {
                 .collect();
         }
 
-        let detections = explanation
+        let taken = explanation
             .taken
             .par_iter()
-            .map(|&i| self.detection(&verifier, &candidates[i]))
+            .map(|&i| self.polished(&verifier, &candidates[i]))
+            .collect::<Result<Vec<Candidate>>>()?;
+        let detections = taken
+            .par_iter()
+            .map(|c| self.detection(&verifier, c))
             .collect();
         Ok(VotingFound {
             detections,
@@ -549,7 +554,7 @@ impl SceneVoting<'_> {
         score: &ViewScore,
     ) -> Result<Option<(Isometry3<f64>, IcpReport, ViewScore)>> {
         let w = self.params.verify.free_space_weight;
-        let Some((unhidden, out)) = verifier.refine_unhidden(pose)? else {
+        let Some((unhidden, out)) = verifier.refine_unhidden(pose, false)? else {
             return Ok(None);
         };
         let s = verifier.score(&unhidden);
@@ -561,6 +566,33 @@ impl SceneVoting<'_> {
             };
             (unhidden, report, s)
         }))
+    }
+
+    /// `c` after the polish pass (`polish_pass`): one fine pass with mutual nearest
+    /// neighbours on the surface the scene does not hide, adopted when the part fits closer
+    /// without explaining less. Skipped once the time budget is spent.
+    fn polished(&self, verifier: &Verifier, c: &Candidate) -> Result<Candidate> {
+        if !self.params.verify.polish_pass || self.deadline.check("polish").is_err() {
+            return Ok(c.clone());
+        }
+        let w = self.params.verify.free_space_weight;
+        let Some((pose, out)) = verifier.refine_unhidden(&c.pose, true)? else {
+            return Ok(c.clone());
+        };
+        let score = verifier.score(&pose);
+        if !(score.mean_fit() > c.score.mean_fit() && score.support(w) >= c.score.support(w)) {
+            return Ok(c.clone());
+        }
+        Ok(Candidate {
+            pose,
+            score,
+            icp: IcpReport {
+                polished: true,
+                unhidden: c.icp.unhidden,
+                ..icp_report(Some(&out), true)
+            },
+            ..c.clone()
+        })
     }
 
     /// The greedy scene explanation over `candidates`: a near-tie between different poses
@@ -742,6 +774,7 @@ fn icp_report(icp: Option<&binpick_pcl::IcpOutcome>, adopted: bool) -> IcpReport
         fitness_mm2: icp.and_then(|o| IcpReport::usable_fitness(o.fitness)),
         adopted,
         unhidden: false,
+        polished: false,
         error: None,
     }
 }

@@ -60,6 +60,7 @@ pub(crate) fn icp_settings(cfg: &IcpConfig, initial: &Isometry3<f64>) -> IcpPara
         transformation_epsilon: cfg.icp_transformation_epsilon,
         batch_correspondences: true,
         relative_mse: cfg.icp_relative_mse,
+        reciprocal: false,
     }
 }
 
@@ -91,6 +92,7 @@ pub(crate) fn final_alignment(
             fitness_mm2: None,
             adopted: false,
             unhidden: false,
+            polished: false,
             error: None,
         },
     };
@@ -123,6 +125,7 @@ pub(crate) fn final_alignment(
                 transformation_epsilon: cfg.icp_transformation_epsilon,
                 batch_correspondences: true,
                 relative_mse: 0.0,
+                reciprocal: false,
             },
         );
         match fine {

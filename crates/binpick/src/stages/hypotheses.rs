@@ -93,6 +93,7 @@ impl VotingModel {
                 transformation_epsilon: eps,
                 batch_correspondences: true,
                 relative_mse: 1e-4,
+                reciprocal: false,
             },
         )?
         .into_iter()

@@ -269,7 +269,7 @@ impl<'a> Verifier<'a> {
             }
             let mut iterations = self.cfg.refine_iterations;
             if let Some(worth) = probe.take().filter(|_| iterations > PROBE_ITERATIONS) {
-                let out = self.icp(&src, &pose, distance, PROBE_ITERATIONS)?;
+                let out = self.icp(&src, &pose, distance, PROBE_ITERATIONS, false)?;
                 if let Some(p) = out.pose() {
                     pose = p;
                 }
@@ -283,7 +283,7 @@ impl<'a> Verifier<'a> {
                 }
                 iterations -= PROBE_ITERATIONS;
             }
-            let out = self.icp(&src, &pose, distance, iterations)?;
+            let out = self.icp(&src, &pose, distance, iterations, false)?;
             if let Some(p) = out.pose() {
                 pose = p;
             }
@@ -310,7 +310,8 @@ impl<'a> Verifier<'a> {
             if src.len() < MIN_RIBBON_POINTS {
                 break;
             }
-            let out = self.icp_onto(ribbons, &src, &pose, distance, self.cfg.refine_iterations)?;
+            let iterations = self.cfg.refine_iterations;
+            let out = self.icp_onto(ribbons, &src, &pose, distance, iterations, false)?;
             if let Some(p) = out.pose() {
                 pose = p;
                 moved = true;
@@ -381,10 +382,12 @@ impl<'a> Verifier<'a> {
     /// One fine ICP pass (correspondences within two tolerances) on the visible surface less
     /// what the scene hides by more than a tolerance: a part under its neighbours is
     /// otherwise pulled towards them. Meant for a pose already refined: from farther off,
-    /// the part's own surface would look hidden. None when too little is left to align.
+    /// the part's own surface would look hidden. With `reciprocal`, only mutual nearest
+    /// neighbours pair up (`IcpParams::reciprocal`). None when too little is left to align.
     pub(crate) fn refine_unhidden(
         &self,
         pose: &Isometry3<f64>,
+        reciprocal: bool,
     ) -> Result<Option<(Isometry3<f64>, binpick_pcl::IcpOutcome)>> {
         let tolerance = self.scale.tolerance_mm;
         let idx = self
@@ -394,7 +397,13 @@ impl<'a> Verifier<'a> {
         if src.len() < 10 {
             return Ok(None);
         }
-        let out = self.icp(&src, pose, 2.0 * tolerance, self.cfg.refine_iterations)?;
+        let out = self.icp(
+            &src,
+            pose,
+            2.0 * tolerance,
+            self.cfg.refine_iterations,
+            reciprocal,
+        )?;
         Ok(out.pose().map(|p| (p, out)))
     }
 
@@ -405,8 +414,9 @@ impl<'a> Verifier<'a> {
         pose: &Isometry3<f64>,
         distance: f64,
         iterations: u32,
+        reciprocal: bool,
     ) -> Result<binpick_pcl::IcpOutcome> {
-        self.icp_onto(&self.world, src, pose, distance, iterations)
+        self.icp_onto(&self.world, src, pose, distance, iterations, reciprocal)
     }
 
     /// PCL's ICP of the model points `src` onto `target` from `pose`.
@@ -417,6 +427,7 @@ impl<'a> Verifier<'a> {
         pose: &Isometry3<f64>,
         distance: f64,
         iterations: u32,
+        reciprocal: bool,
     ) -> Result<binpick_pcl::IcpOutcome> {
         let w = self.scale.resolution_mm;
         target
@@ -429,6 +440,7 @@ impl<'a> Verifier<'a> {
                     transformation_epsilon: 1e-6 * w * w,
                     batch_correspondences: true,
                     relative_mse: self.cfg.refine_relative_mse,
+                    reciprocal,
                 },
             )
             .map_err(pcl("refinement ICP"))
