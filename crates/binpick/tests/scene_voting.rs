@@ -26,6 +26,16 @@ struct BeltScan {
     _dir: tempfile::TempDir,
 }
 
+impl BeltScan {
+    /// A recognizer for the same part on the default parameters as `change` leaves them.
+    fn recognizer_with(&self, change: impl FnOnce(&mut Params)) -> Recognizer {
+        let mut params = Params::default();
+        change(&mut params);
+        let (part, _) = load_part(&self.part_file, Units::Millimetres, &params).unwrap();
+        Recognizer::with_part(part, params).unwrap()
+    }
+}
+
 /// Scan `index` of the generalisation benchmark's `brackets-belt-1mm` set (seed 1).
 fn belt_scan(index: usize) -> BeltScan {
     bracket_scan("brackets-belt-1mm", index)
@@ -223,10 +233,7 @@ fn a_part_under_its_neighbours_is_refined_on_the_surface_the_scene_does_not_hide
     // off each covered ring (a voted pose's error), the last pass on the surface the scene
     // does not hide brings the poses in.
     let on = set_scan(PartKind::Ring, "rings-bin-depth", 0, Params::default());
-    let mut params = Params::default();
-    params.verify.unhidden_pass = false;
-    let (part, _) = load_part(&on.part_file, Units::Millimetres, &params).unwrap();
-    let off = Recognizer::with_part(part, params).unwrap();
+    let off = on.recognizer_with(|p| p.verify.unhidden_pass = false);
     let min_fit = Params::default().verify.min_fit;
     let starts: [(f64, f64, f64); 5] = [
         (2.0, 0.0, 0.0),
@@ -284,10 +291,7 @@ fn taken_parts_are_polished_down_onto_the_scan() {
     // pairs mutual nearest neighbours only. It moves the parts the competition took and takes
     // no part in choosing them.
     let on = set_scan(PartKind::Rod, "rods-bin-2mm", 0, Params::default());
-    let mut params = Params::default();
-    params.verify.polish_pass = false;
-    let (part, _) = load_part(&on.part_file, Units::Millimetres, &params).unwrap();
-    let off = Recognizer::with_part(part, params).unwrap();
+    let off = on.recognizer_with(|p| p.verify.polish_pass = false);
     let with = on.recognizer.recognize(&on.scene).unwrap();
     let without = off.recognize(&on.scene).unwrap();
     assert_eq!(with.detections.len(), without.detections.len());
@@ -336,10 +340,9 @@ fn the_outline_weight_lifts_the_acceptance_fit_of_a_part_standing_on_its_edge_on
     // (the engine's poses of such brackets fitted at 0.59-0.70 with a quarter weight).
     let s = belt_scan(0);
     assert!(!s.on_edge.is_empty(), "scan 0 has no bracket on its edge");
-    let mut params = Params::default();
-    params.verify.outline_neighbour_weight = binpick_match::NEIGHBOUR_FIT_WEIGHT;
-    let (part, _) = load_part(&s.part_file, Units::Millimetres, &params).unwrap();
-    let quarter = Recognizer::with_part(part, params).unwrap();
+    let quarter = s.recognizer_with(|p| {
+        p.verify.outline_neighbour_weight = binpick_match::NEIGHBOUR_FIT_WEIGHT
+    });
     let gain = |truth: &Isometry3<f64>, tilt_deg: f64| {
         let centre = (truth * nalgebra::Point3::origin()).coords;
         let tilt = UnitQuaternion::from_euler_angles(tilt_deg.to_radians(), 0.0, 0.0);
