@@ -553,19 +553,15 @@ impl SceneVoting<'_> {
         pose: &Isometry3<f64>,
         score: &ViewScore,
     ) -> Result<Option<(Isometry3<f64>, IcpReport, ViewScore)>> {
-        let w = self.params.verify.free_space_weight;
-        let Some((unhidden, out)) = verifier.refine_unhidden(pose, false)? else {
-            return Ok(None);
-        };
-        let s = verifier.score(&unhidden);
-        let better = s.mean_fit() > score.mean_fit() && s.support(w) >= score.support(w);
-        Ok(better.then(|| {
-            let report = IcpReport {
-                unhidden: true,
-                ..icp_report(Some(&out), true)
-            };
-            (unhidden, report, s)
-        }))
+        Ok(self
+            .closer(verifier, pose, score, false)?
+            .map(|(unhidden, out, s)| {
+                let report = IcpReport {
+                    unhidden: true,
+                    ..icp_report(Some(&out), true)
+                };
+                (unhidden, report, s)
+            }))
     }
 
     /// `c` after the polish pass (`polish_pass`): one fine pass with mutual nearest
@@ -575,14 +571,9 @@ impl SceneVoting<'_> {
         if !self.params.verify.polish_pass || self.deadline.check("polish").is_err() {
             return Ok(c.clone());
         }
-        let w = self.params.verify.free_space_weight;
-        let Some((pose, out)) = verifier.refine_unhidden(&c.pose, true)? else {
+        let Some((pose, out, score)) = self.closer(verifier, &c.pose, &c.score, true)? else {
             return Ok(c.clone());
         };
-        let score = verifier.score(&pose);
-        if !(score.mean_fit() > c.score.mean_fit() && score.support(w) >= c.score.support(w)) {
-            return Ok(c.clone());
-        }
         Ok(Candidate {
             pose,
             score,
@@ -593,6 +584,25 @@ impl SceneVoting<'_> {
             },
             ..c.clone()
         })
+    }
+
+    /// One fine pass of [`Verifier::refine_unhidden`] from `pose` (scored `score`), with
+    /// only mutual nearest neighbours when `reciprocal`: the pose it reaches, ICP's outcome
+    /// and its score, when the part fits closer there without explaining less.
+    fn closer(
+        &self,
+        verifier: &Verifier,
+        pose: &Isometry3<f64>,
+        score: &ViewScore,
+        reciprocal: bool,
+    ) -> Result<Option<(Isometry3<f64>, binpick_pcl::IcpOutcome, ViewScore)>> {
+        let w = self.params.verify.free_space_weight;
+        let Some((moved, out)) = verifier.refine_unhidden(pose, reciprocal)? else {
+            return Ok(None);
+        };
+        let s = verifier.score(&moved);
+        let better = s.mean_fit() > score.mean_fit() && s.support(w) >= score.support(w);
+        Ok(better.then_some((moved, out, s)))
     }
 
     /// The greedy scene explanation over `candidates`: a near-tie between different poses
