@@ -138,7 +138,7 @@ pub fn summary(r: &Recognition) -> String {
     let planes = r.preprocess.support_planes.len();
     let removed: usize = r.preprocess.support_planes.iter().map(|p| p.points).sum();
     format!(
-        "{} detection(s) in {:.0} ms; scene {} points, {} merged by the voxel grid, {} outside the ROI, {} stray, {} support plane(s) with {} points removed, {} left; {} cluster(s){}",
+        "{} detection(s) in {:.0} ms; scene {} points, {} merged by the voxel grid, {} outside the ROI, {} stray, {} support plane(s) with {} points removed{}, {} left; {} cluster(s){}",
         r.detections.len(),
         r.timings.total_ms,
         r.preprocess.input_points,
@@ -147,6 +147,11 @@ pub fn summary(r: &Recognition) -> String {
         r.preprocess.isolated_removed,
         planes,
         removed,
+        if r.preprocess.support_noise > 0 {
+            format!(" (and {} of their noise tail)", r.preprocess.support_noise)
+        } else {
+            String::new()
+        },
         r.preprocess.remaining,
         r.clusters.len(),
         if r.duplicates_suppressed > 0 {

@@ -36,7 +36,8 @@ use crate::stages::hypotheses::VotingModel;
 use crate::stages::model::PreparedModel;
 use crate::stages::part::Part;
 use crate::stages::preprocess::{
-    SupportSize, bounds, check_units, clean_scene, preprocess, voxelise_keeping_support,
+    SupportSize, bounds, check_units, clean_scene, label_support_noise, preprocess,
+    voxelise_keeping_support,
 };
 use crate::stages::rank::{rank_by_view, rank_detections, suppress_duplicates};
 use crate::stages::scale::measure_spacing;
@@ -549,7 +550,7 @@ impl Recognizer {
         let mut pre = p.preprocess.clone();
         pre.resolution_mm = Some(scale.resolution_mm);
         pre.support.distance_mm = Some(scale.support_distance_mm);
-        let (points, support) = voxelise_keeping_support(
+        let (points, mut support) = voxelise_keeping_support(
             &cleaned,
             &pre,
             scale.connect_mm,
@@ -562,6 +563,24 @@ impl Recognizer {
             preprocessed,
         )?;
         let noise = preprocessed.support_planes.first().and_then(|p| p.rms_mm);
+        let s = &p.preprocess.support;
+        if let Some(sigma) = noise.filter(|_| s.noise_tail_sigmas > 0.0) {
+            let planes: Vec<[f32; 4]> = preprocessed
+                .support_planes
+                .iter()
+                .map(|p| p.coefficients)
+                .collect();
+            preprocessed.support_noise = label_support_noise(
+                &points,
+                &mut support,
+                &planes,
+                scale.support_distance_mm,
+                s.noise_tail_sigmas * sigma,
+                2.0 * scale.resolution_mm,
+                s.noise_tail_min_neighbours,
+            )?;
+            preprocessed.remaining -= preprocessed.support_noise;
+        }
         let scale = scale.with_noise(noise, preprocessed.support_band_mm, p);
         *scale_out = Some(scale);
         let planes = preprocessed

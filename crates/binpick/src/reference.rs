@@ -280,6 +280,7 @@ fn convert(r: ReferenceResult, p: &Params) -> Result<ReferenceRun> {
             isolated_removed: 0,
             voxel_merged: r.voxel_merged as usize,
             support_band_mm: None,
+            support_noise: 0,
             support_planes: r
                 .support_planes
                 .iter()

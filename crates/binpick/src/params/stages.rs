@@ -83,6 +83,17 @@ stage_config! {
         /// ... but never nearer than this many resolutions (a thinner band leaves the noise's
         /// tail across the plane as stray points and separates nothing a voxel can).
         min_band_resolutions: f64 = 1.0, within(0.0, 100.0, "x resolution");
+        /// Scene voting: the noise tail of a support plane. A point that is not support,
+        /// lies past the plane distance but within this many times the largest plane's
+        /// measured noise of a support plane, and has fewer than `noise_tail_min_neighbours`
+        /// points that are not support within two resolutions, is the plane's noise, not a
+        /// part, and is labelled support too. A depth camera's bin floor (noise 0.6 mm, plane
+        /// distance 1.3 mm) leaves thousands of such points, each alone (a third of what is
+        /// left of a bin); a part's surface there is scanned densely. 0 = off.
+        noise_tail_sigmas: f64 = 4.0, within(0.0, 1000.0, "x plane RMS (0 = off)");
+        /// See `noise_tail_sigmas`: a surface scanned at the resolution has about 12 points
+        /// within two resolutions.
+        noise_tail_min_neighbours: usize = 3, count(1, 1000, "points");
     }
 }
 

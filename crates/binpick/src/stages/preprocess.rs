@@ -444,6 +444,62 @@ fn find_support(
     Ok(removed)
 }
 
+/// The noise tail of the support planes (`SupportRemoval::noise_tail_sigmas`): every point
+/// that is not `support`, lies past the plane distance `from_mm` but within `to_mm` of one of
+/// `planes` (`a x + b y + c z + d = 0`, unit normal, mm) and has fewer than `min_neighbours`
+/// other points that are not support within `radius_mm` is labelled support. What the
+/// support search left within the plane distance (small patches, the flanks of a curved
+/// part) is not looked at. Decided for all points against the labels as given, so the
+/// answer does not depend on order or threads. Returns how many were labelled.
+pub(crate) fn label_support_noise(
+    points: &[Point],
+    support: &mut [bool],
+    planes: &[[f32; 4]],
+    from_mm: f64,
+    to_mm: f64,
+    radius_mm: f64,
+    min_neighbours: usize,
+) -> Result<usize> {
+    use rayon::prelude::*;
+    let near_plane = |p: &Point| {
+        planes.iter().any(|c| {
+            let d = f64::from(c[0]) * f64::from(p[0])
+                + f64::from(c[1]) * f64::from(p[1])
+                + f64::from(c[2]) * f64::from(p[2])
+                + f64::from(c[3]);
+            d.abs() > from_mm && d.abs() <= to_mm
+        })
+    };
+    let rest: Vec<u32> = (0..points.len() as u32)
+        .filter(|&i| !support[i as usize])
+        .collect();
+    if rest.is_empty() || planes.is_empty() || to_mm <= from_mm {
+        return Ok(0);
+    }
+    let rest_points: Vec<Point> = rest.iter().map(|&i| points[i as usize]).collect();
+    let index = binpick_match::PointIndex::new("scene", &rest_points)
+        .map_err(crate::stages::hypotheses::matching("support noise"))?;
+    let noise: Vec<bool> = rest_points
+        .par_iter()
+        .map_init(Vec::new, |near, p| {
+            if !near_plane(p) {
+                return false;
+            }
+            index.within_into(p, radius_mm as f32, near);
+            // The point itself is among them.
+            near.len() < min_neighbours + 1
+        })
+        .collect();
+    let mut labelled = 0;
+    for (&i, is_noise) in rest.iter().zip(noise) {
+        if is_noise {
+            support[i as usize] = true;
+            labelled += 1;
+        }
+    }
+    Ok(labelled)
+}
+
 /// The smallest patch that counts as large.
 #[derive(Clone, Copy, Debug)]
 enum PatchMin {
@@ -555,6 +611,74 @@ mod tests {
         }
         let big = large_patches(&pts, [0.0, 0.0, 1.0, 0.0], 1.5, PatchMin::Points(150));
         assert!(big[..200].iter().all(|&b| b));
+    }
+
+    #[test]
+    fn the_floors_noise_tail_becomes_support_and_a_sheet_lying_on_it_does_not() {
+        // A floor at 1 mm spacing, all support but every 25th point, which lies 1.5-2.5 mm
+        // above or below it (the tail past the support band); a 2 mm sheet, 20 x 20 mm at
+        // 1 mm, lying on it; and one point far above the floor, alone.
+        let (mut pts, mut support) = (Vec::new(), Vec::new());
+        for i in 0..100 {
+            for j in 0..100 {
+                let tail = (i * 100 + j) % 25 == 0;
+                let z = if tail {
+                    (if (i + j) % 2 == 0 { 1.0 } else { -1.0 }) * (1.5 + (j % 3) as f32 * 0.5)
+                } else {
+                    0.0
+                };
+                pts.push([i as f32, j as f32, z]);
+                support.push(!tail);
+            }
+        }
+        let tail = support.iter().filter(|s| !**s).count();
+        for i in 0..20 {
+            for j in 0..20 {
+                pts.push([40.0 + i as f32, 40.0 + j as f32 + 0.5, 2.0]);
+                support.push(false);
+            }
+        }
+        pts.push([10.0, 10.0, 30.0]);
+        support.push(false);
+        let mut labelled = support.clone();
+        let n = label_support_noise(
+            &pts,
+            &mut labelled,
+            &[[0.0, 0.0, 1.0, 0.0]],
+            1.0,
+            3.0,
+            2.0,
+            3,
+        )
+        .unwrap();
+        // Tail points just under the sheet have its points as neighbours and stay: the
+        // answer is a brute-force count's.
+        let near_sheet = (0..10_000)
+            .filter(|&k| {
+                !support[k]
+                    && pts[10_000..10_400]
+                        .iter()
+                        .any(|q| (0..3).map(|c| (q[c] - pts[k][c]).powi(2)).sum::<f32>() <= 4.0)
+            })
+            .count();
+        assert!(near_sheet > 0 && tail > 300);
+        assert_eq!(n, tail - near_sheet);
+        assert!(
+            labelled[10_000..10_400].iter().all(|s| !s),
+            "the sheet stays"
+        );
+        assert!(!labelled[10_400], "a point away from the planes stays");
+        // A tail within the plane distance is not looked at; nor is anything when the band
+        // ends there.
+        for (from, to) in [(3.0, 5.0), (1.0, 1.0)] {
+            let mut same = support.clone();
+            assert_eq!(
+                label_support_noise(&pts, &mut same, &[[0.0, 0.0, 1.0, 0.0]], from, to, 2.0, 3)
+                    .unwrap(),
+                0
+            );
+            assert_eq!(same, support);
+        }
     }
 
     /// A 200 x 200 mm floor at 1 mm spacing, noisy by up to +-0.3 mm (RMS about 0.17 mm),
