@@ -398,3 +398,39 @@ fn brackets_lying_on_the_edge_of_their_sheet_in_a_pile_are_found() {
         "first pick {first:?}"
     );
 }
+
+#[test]
+fn the_floors_noise_tail_is_support_and_no_hypothesis_sinks_into_the_floor() {
+    // A depth camera's bin: its noise (0.6 mm) leaves thousands of floor points past the
+    // plane distance (1.3 mm), each alone. Left in the scene they were more than half of its
+    // samples (each stray is a sample of its own), and their sparse neighbourhoods passed for
+    // the thin strips the rim table votes for: rim hypotheses went to poses sunk into the
+    // floor.
+    let s = bracket_scan("brackets-bin-depth", 1);
+    let with = s.recognizer.recognize(&s.scene).unwrap();
+    let without = s
+        .recognizer_with(|p| p.preprocess.support.noise_tail_sigmas = 0.0)
+        .recognize(&s.scene)
+        .unwrap();
+    assert_eq!(without.preprocess.support_noise, 0);
+    let tail = with.preprocess.support_noise;
+    assert!(tail > 3000, "{tail} noise points");
+    assert_eq!(
+        with.preprocess.remaining + tail,
+        without.preprocess.remaining,
+        "only points that were left become support"
+    );
+    let (v, v0) = (with.voting.unwrap(), without.voting.unwrap());
+    assert!(
+        2 * v.scene_samples < v0.scene_samples,
+        "scene samples {} with the tail as support, {} without",
+        v.scene_samples,
+        v0.scene_samples
+    );
+    assert!(
+        3 * v.rejected_below_support < v0.rejected_below_support,
+        "poses sunk into the support: {} with, {} without",
+        v.rejected_below_support,
+        v0.rejected_below_support
+    );
+}
