@@ -612,8 +612,8 @@ pub struct PreprocessReport {
     /// mm; absent where the whole support distance was labelled.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub support_band_mm: Option<f64>,
-    /// Scene voting: points past the support band labelled support as the planes' noise tail
-    /// (`noise_tail_sigmas`).
+    /// Scene voting: points past the plane distance labelled support as the planes' noise
+    /// tail (`noise_tail_sigmas`).
     #[serde(default)]
     pub support_noise: usize,
     /// Points left for clustering.

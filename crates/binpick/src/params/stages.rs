@@ -88,8 +88,8 @@ stage_config! {
         /// measured noise of a support plane, and has fewer than `noise_tail_min_neighbours`
         /// points that are not support within two resolutions, is the plane's noise, not a
         /// part, and is labelled support too. A depth camera's bin floor (noise 0.6 mm, plane
-        /// distance 1.3 mm) leaves thousands of such points, each alone (a third of what is
-        /// left of a bin); a part's surface there is scanned densely. 0 = off.
+        /// distance 1.3 mm) leaves thousands of such points, each alone (a seventh to a quarter
+        /// of what is left of its bin); a part's surface there is scanned densely. 0 = off.
         noise_tail_sigmas: f64 = 4.0, within(0.0, 1000.0, "x plane RMS (0 = off)");
         /// See `noise_tail_sigmas`: a surface scanned at the resolution has about 12 points
         /// within two resolutions.

@@ -470,29 +470,34 @@ pub(crate) fn label_support_noise(
             d.abs() > from_mm && d.abs() <= to_mm
         })
     };
+    if planes.is_empty() || to_mm <= from_mm {
+        return Ok(0);
+    }
     let rest: Vec<u32> = (0..points.len() as u32)
         .filter(|&i| !support[i as usize])
         .collect();
-    if rest.is_empty() || planes.is_empty() || to_mm <= from_mm {
+    let in_band: Vec<u32> = rest
+        .iter()
+        .copied()
+        .filter(|&i| near_plane(&points[i as usize]))
+        .collect();
+    if in_band.is_empty() {
         return Ok(0);
     }
     let rest_points: Vec<Point> = rest.iter().map(|&i| points[i as usize]).collect();
     let index = binpick_match::PointIndex::new("scene", &rest_points)
         .map_err(crate::stages::hypotheses::matching("support noise"))?;
-    let noise: Vec<bool> = rest_points
+    let alone: Vec<bool> = in_band
         .par_iter()
-        .map_init(Vec::new, |near, p| {
-            if !near_plane(p) {
-                return false;
-            }
-            index.within_into(p, radius_mm as f32, near);
+        .map_init(Vec::new, |near, &i| {
+            index.within_into(&points[i as usize], radius_mm as f32, near);
             // The point itself is among them.
             near.len() < min_neighbours + 1
         })
         .collect();
     let mut labelled = 0;
-    for (&i, is_noise) in rest.iter().zip(noise) {
-        if is_noise {
+    for (&i, alone) in in_band.iter().zip(alone) {
+        if alone {
             support[i as usize] = true;
             labelled += 1;
         }
