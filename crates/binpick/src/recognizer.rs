@@ -563,13 +563,13 @@ impl Recognizer {
             preprocessed,
         )?;
         let noise = preprocessed.support_planes.first().and_then(|p| p.rms_mm);
+        let planes: Vec<[f64; 4]> = preprocessed
+            .support_planes
+            .iter()
+            .map(|p| p.coefficients.map(f64::from))
+            .collect();
         let s = &p.preprocess.support;
         if let Some(sigma) = noise.filter(|_| s.noise_tail_sigmas > 0.0) {
-            let planes: Vec<[f32; 4]> = preprocessed
-                .support_planes
-                .iter()
-                .map(|p| p.coefficients)
-                .collect();
             preprocessed.support_noise = label_support_noise(
                 &points,
                 &mut support,
@@ -583,11 +583,6 @@ impl Recognizer {
         }
         let scale = scale.with_noise(noise, preprocessed.support_band_mm, p);
         *scale_out = Some(scale);
-        let planes = preprocessed
-            .support_planes
-            .iter()
-            .map(|p| p.coefficients.map(f64::from))
-            .collect();
         Ok(PreparedScene {
             scale,
             model,

@@ -454,7 +454,7 @@ fn find_support(
 pub(crate) fn label_support_noise(
     points: &[Point],
     support: &mut [bool],
-    planes: &[[f32; 4]],
+    planes: &[[f64; 4]],
     from_mm: f64,
     to_mm: f64,
     radius_mm: f64,
@@ -463,10 +463,7 @@ pub(crate) fn label_support_noise(
     use rayon::prelude::*;
     let near_plane = |p: &Point| {
         planes.iter().any(|c| {
-            let d = f64::from(c[0]) * f64::from(p[0])
-                + f64::from(c[1]) * f64::from(p[1])
-                + f64::from(c[2]) * f64::from(p[2])
-                + f64::from(c[3]);
+            let d = c[0] * f64::from(p[0]) + c[1] * f64::from(p[1]) + c[2] * f64::from(p[2]) + c[3];
             d.abs() > from_mm && d.abs() <= to_mm
         })
     };
