@@ -31,7 +31,8 @@ use crate::result::{
     VotingReport,
 };
 use crate::stages::hypotheses::{
-    Voted, VotingModel, matching, scene_normals, scene_rims, scene_samples, view_normals, vote,
+    Voted, VotingModel, matching, scene_normals, scene_rims, scene_samples, view_normals,
+    view_normals_index, vote,
 };
 use crate::stages::part::Part;
 use crate::stages::rank::height_mm;
@@ -105,16 +106,24 @@ impl SceneVoting<'_> {
             .map(|(c, b)| (*c, b.is_some()))
             .collect();
         let towards = viewpoint(&sensor, points);
-        let normals = scene_normals(
-            points,
-            support,
-            &planes,
-            self.scale,
-            towards,
-            self.threads as u32,
-        )?;
+        // PCL's normals and the view normals' index (each built on one core) side by side.
+        let (normals, index) = rayon::join(
+            || {
+                scene_normals(
+                    points,
+                    support,
+                    &planes,
+                    self.scale,
+                    towards,
+                    self.threads as u32,
+                )
+            },
+            || view_normals_index(points),
+        );
+        let normals = normals?;
         let view_normals = view_normals(
             points,
+            &index?,
             support,
             &normals,
             self.scale.normal_radius_mm,

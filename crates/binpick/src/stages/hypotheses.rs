@@ -200,8 +200,10 @@ const RIBBON_SPREAD_RATIO: f64 = 0.15;
 /// point (not `support`) whose neighbourhood within `radius` (mm) is a ribbon
 /// ([`RIBBON_SPREAD_RATIO`]) faces the sensor at `viewpoint` across the ribbon's axis: a
 /// strip the sensor sees faces it. (Voting keeps the fitted normals.)
+/// `index` is [`view_normals_index`] over `points`.
 pub(crate) fn view_normals(
     points: &[Point],
+    index: &PointIndex,
     support: &[bool],
     normals: &[[f32; 3]],
     radius: f64,
@@ -209,7 +211,6 @@ pub(crate) fn view_normals(
 ) -> Result<Vec<[f32; 3]>> {
     use rayon::prelude::*;
     let vp = nalgebra::Vector3::from(viewpoint);
-    let index = PointIndex::new("scene", points).map_err(matching("scene normals"))?;
     Ok(points
         .par_iter()
         .zip(support)
@@ -235,6 +236,12 @@ pub(crate) fn view_normals(
             }
         })
         .collect())
+}
+
+/// The index [`view_normals`] searches, over the whole scene `points`: built apart so it can
+/// be built while PCL estimates the normals.
+pub(crate) fn view_normals_index(points: &[Point]) -> Result<PointIndex> {
+    PointIndex::new("scene", points).map_err(matching("scene normals"))
 }
 
 fn vector(p: &Point) -> nalgebra::Vector3<f64> {
@@ -619,7 +626,8 @@ mod tests {
             normals.push([0.0, 1.0, 0.0]);
         }
         let above = [30.0, 0.0, 1e7];
-        let view = view_normals(&points, &support, &normals, 5.75, above).unwrap();
+        let index = view_normals_index(&points).unwrap();
+        let view = view_normals(&points, &index, &support, &normals, 5.75, above).unwrap();
         // Away from its ends (within a radius of an end the neighbourhood is a short, wide
         // patch: the fitted normal stands).
         for (i, n) in view[..strip].iter().enumerate() {

@@ -535,18 +535,13 @@ fn large_patches(points: &[Point], plane: [f32; 4], cell_mm: f64, min: PatchMin)
         )
     };
     let cells: Vec<(i64, i64)> = points.iter().map(cell_of).collect();
-    let mut id: HashMap<(i64, i64), usize, BuildHasherDefault<CellHasher>> = HashMap::default();
-    let mut count: Vec<usize> = Vec::new();
-    for c in &cells {
-        let next = id.len();
-        let k = *id.entry(*c).or_insert(next);
-        if k == count.len() {
-            count.push(0);
-        }
-        count[k] += 1;
+    let (id, numbers, occupied_cells) = CellIds::number(&cells);
+    let mut count = vec![0usize; occupied_cells.len()];
+    for &k in &numbers {
+        count[k as usize] += 1;
     }
     // Union-find over occupied cells.
-    let mut parent: Vec<usize> = (0..id.len()).collect();
+    let mut parent: Vec<usize> = (0..count.len()).collect();
     fn root(parent: &mut [usize], mut i: usize) -> usize {
         while parent[i] != i {
             parent[i] = parent[parent[i]];
@@ -554,9 +549,9 @@ fn large_patches(points: &[Point], plane: [f32; 4], cell_mm: f64, min: PatchMin)
         }
         i
     }
-    for (&(a, b), &k) in &id {
+    for (k, &(a, b)) in occupied_cells.iter().enumerate() {
         for (da, db) in [(1, -1), (1, 0), (1, 1), (0, 1)] {
-            if let Some(&j) = id.get(&(a + da, b + db)) {
+            if let Some(j) = id.get((a + da, b + db)) {
                 let (ra, rb) = (root(&mut parent, k), root(&mut parent, j));
                 if ra != rb {
                     parent[ra.max(rb)] = ra.min(rb);
@@ -571,10 +566,10 @@ fn large_patches(points: &[Point], plane: [f32; 4], cell_mm: f64, min: PatchMin)
         size[r] += c;
         occupied[r] += 1;
     }
-    cells
+    numbers
         .iter()
-        .map(|c| {
-            let r = root(&mut parent, id[c]);
+        .map(|&k| {
+            let r = root(&mut parent, k as usize);
             match min {
                 PatchMin::Points(n) => size[r] >= n,
                 PatchMin::AreaMm2(a) => occupied[r] as f64 * cell_mm * cell_mm >= a,
@@ -583,9 +578,132 @@ fn large_patches(points: &[Point], plane: [f32; 4], cell_mm: f64, min: PatchMin)
         .collect()
 }
 
+/// Cells of a 2-D grid numbered in the order they first occur: a dense array over the cells'
+/// bounding range when it is at most [`DENSE_CELLS_PER_POINT`] cells per point (a support
+/// plane's inliers fill their range), a hash map otherwise (a few points far apart). Both
+/// give the same numbers; the array spares hashing half a million points of a belt.
+enum CellIds {
+    Dense {
+        /// `ids[(a - lo.0) * rows + (b - lo.1)]`: the number of cell (a, b), or `u32::MAX`.
+        ids: Vec<u32>,
+        lo: (i64, i64),
+        hi: (i64, i64),
+        rows: usize,
+    },
+    Sparse(HashMap<(i64, i64), u32, BuildHasherDefault<CellHasher>>),
+}
+
+/// Most cells per point for [`CellIds`]' dense array.
+const DENSE_CELLS_PER_POINT: i128 = 8;
+
+/// Cells from `lo` to `hi`, both included.
+fn span(lo: i64, hi: i64) -> i128 {
+    i128::from(hi) - i128::from(lo) + 1
+}
+
+impl CellIds {
+    /// Numbers `cells` in first-seen order: the numbering, each cell's number and the
+    /// distinct cells in number order.
+    fn number(cells: &[(i64, i64)]) -> (Self, Vec<u32>, Vec<(i64, i64)>) {
+        let Some(&first) = cells.first() else {
+            return Self::sparse(cells);
+        };
+        let (lo, hi) = cells.iter().fold((first, first), |(lo, hi), &(a, b)| {
+            ((lo.0.min(a), lo.1.min(b)), (hi.0.max(a), hi.1.max(b)))
+        });
+        let area = span(lo.0, hi.0) * span(lo.1, hi.1);
+        if area <= DENSE_CELLS_PER_POINT * (cells.len() as i128 + 1024) {
+            Self::dense(cells, lo, hi)
+        } else {
+            Self::sparse(cells)
+        }
+    }
+
+    /// [`CellIds::number`] in an array over `lo..=hi`, which bounds `cells`.
+    fn dense(
+        cells: &[(i64, i64)],
+        lo: (i64, i64),
+        hi: (i64, i64),
+    ) -> (Self, Vec<u32>, Vec<(i64, i64)>) {
+        let rows = span(lo.1, hi.1) as usize;
+        let mut ids = vec![u32::MAX; (span(lo.0, hi.0) * span(lo.1, hi.1)) as usize];
+        let (mut numbers, mut distinct) = (Vec::with_capacity(cells.len()), Vec::new());
+        for &c in cells {
+            let slot = &mut ids[(c.0 - lo.0) as usize * rows + (c.1 - lo.1) as usize];
+            if *slot == u32::MAX {
+                *slot = distinct.len() as u32;
+                distinct.push(c);
+            }
+            numbers.push(*slot);
+        }
+        (Self::Dense { ids, lo, hi, rows }, numbers, distinct)
+    }
+
+    /// [`CellIds::number`] in a hash map.
+    fn sparse(cells: &[(i64, i64)]) -> (Self, Vec<u32>, Vec<(i64, i64)>) {
+        let mut map: HashMap<(i64, i64), u32, BuildHasherDefault<CellHasher>> = HashMap::default();
+        let (mut numbers, mut distinct) = (Vec::with_capacity(cells.len()), Vec::new());
+        for &c in cells {
+            let k = *map.entry(c).or_insert_with(|| {
+                distinct.push(c);
+                (distinct.len() - 1) as u32
+            });
+            numbers.push(k);
+        }
+        (Self::Sparse(map), numbers, distinct)
+    }
+
+    /// The number of cell `c`, None when no point lies in it.
+    fn get(&self, c: (i64, i64)) -> Option<usize> {
+        match self {
+            Self::Dense { ids, lo, hi, rows } => {
+                let inside = (lo.0..=hi.0).contains(&c.0) && (lo.1..=hi.1).contains(&c.1);
+                let slot = inside.then(|| (c.0 - lo.0) as usize * rows + (c.1 - lo.1) as usize);
+                slot.map(|s| ids[s])
+                    .filter(|&k| k != u32::MAX)
+                    .map(|k| k as usize)
+            }
+            Self::Sparse(map) => map.get(&c).map(|&k| k as usize),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn cells_are_numbered_alike_in_the_array_and_the_map() {
+        let mut state = 7u32;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 17;
+            state ^= state << 5;
+            state
+        };
+        let cells: Vec<(i64, i64)> = (0..2000)
+            .map(|_| {
+                (
+                    i64::from(next() % 60) - 30,
+                    i64::from(next() % 40) + 1_000_000,
+                )
+            })
+            .collect();
+        let (lo, hi) = ((-30, 1_000_000), (29, 1_000_039));
+        let (dense, dense_numbers, dense_cells) = CellIds::dense(&cells, lo, hi);
+        let (sparse, sparse_numbers, sparse_cells) = CellIds::sparse(&cells);
+        assert!(matches!(dense, CellIds::Dense { .. }));
+        assert_eq!(dense_numbers, sparse_numbers);
+        assert_eq!(dense_cells, sparse_cells);
+        for a in -32..32 {
+            for b in 999_998..1_000_042 {
+                assert_eq!(dense.get((a, b)), sparse.get((a, b)), "cell ({a}, {b})");
+            }
+        }
+        // Two points a million cells apart take the map.
+        let (far, _, _) = CellIds::number(&[(0, 0), (1_000_000, 0)]);
+        assert!(matches!(far, CellIds::Sparse(_)));
+    }
 
     #[test]
     fn patches_split_by_gaps_and_sized() {
