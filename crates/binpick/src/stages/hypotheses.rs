@@ -17,6 +17,7 @@ use crate::params::VotingConfig;
 use crate::result::DerivedScale;
 use crate::stages::model::near_symmetries;
 use crate::stages::part::Part;
+use crate::stages::preprocess::plane_distance_mm;
 
 /// Errors of the matching crate, attributed to a stage.
 pub(crate) fn matching(stage: &'static str) -> impl Fn(binpick_match::MatchError) -> Error {
@@ -155,7 +156,7 @@ pub(crate) fn scene_normals(
     let vp = nalgebra::Vector3::from(viewpoint);
     let on_plane = |p: &Point| -> Option<[f32; 3]> {
         let q = nalgebra::Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
-        let distance = |c: &[f64; 4]| (c[0] * q.x + c[1] * q.y + c[2] * q.z + c[3]).abs();
+        let distance = |c: &[f64; 4]| plane_distance_mm(c, p).abs();
         let (c, bounds) = planes
             .iter()
             .min_by(|a, b| distance(&a.0).total_cmp(&distance(&b.0)))?;

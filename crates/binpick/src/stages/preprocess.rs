@@ -402,10 +402,7 @@ fn find_support(
             }
         };
         let c = plane.coefficients.map(f64::from);
-        let distance = |k: usize| {
-            let p = inlier_pts[k].map(f64::from);
-            (c[0] * p[0] + c[1] * p[1] + c[2] * p[2] + c[3]).abs()
-        };
+        let distance = |k: usize| plane_distance_mm(&c, &inlier_pts[k]).abs();
         let patch: Vec<usize> = (0..patches.len()).filter(|&k| patches[k]).collect();
         let sq: f64 = patch.iter().map(|&k| distance(k).powi(2)).sum();
         let rms_mm = (!patch.is_empty()).then(|| (sq / patch.len() as f64).sqrt());
@@ -463,8 +460,8 @@ pub(crate) fn label_support_noise(
     use rayon::prelude::*;
     let near_plane = |p: &Point| {
         planes.iter().any(|c| {
-            let d = c[0] * f64::from(p[0]) + c[1] * f64::from(p[1]) + c[2] * f64::from(p[2]) + c[3];
-            d.abs() > from_mm && d.abs() <= to_mm
+            let d = plane_distance_mm(c, p).abs();
+            d > from_mm && d <= to_mm
         })
     };
     if planes.is_empty() || to_mm <= from_mm {
@@ -500,6 +497,11 @@ pub(crate) fn label_support_noise(
         }
     }
     Ok(labelled)
+}
+
+/// Signed distance of `p` from the plane `a x + b y + c z + d = 0` (unit normal, mm).
+pub(crate) fn plane_distance_mm(plane: &[f64; 4], p: &Point) -> f64 {
+    plane[0] * f64::from(p[0]) + plane[1] * f64::from(p[1]) + plane[2] * f64::from(p[2]) + plane[3]
 }
 
 /// The smallest patch that counts as large.
@@ -593,7 +595,8 @@ enum CellIds {
     Sparse(HashMap<(i64, i64), u32, BuildHasherDefault<CellHasher>>),
 }
 
-/// Most cells per point for [`CellIds`]' dense array.
+/// Most cells per point for [`CellIds`]' dense array (counted over at least 1024 points, so
+/// a handful of points close together takes the array too).
 const DENSE_CELLS_PER_POINT: i128 = 8;
 
 /// Cells from `lo` to `hi`, both included.
