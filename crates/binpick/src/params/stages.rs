@@ -489,8 +489,8 @@ stage_config! {
         /// confirms too little of it to tell a right pose from a plausible wrong one.
         min_visibility: f64 = 0.45, within(0.0, 1.0, "");
         /// The sensor may have seen through at most this share of that surface (0.08 before
-        /// the eighth pass, 0.05 before the seventeenth: right poses see through 0.5 % or
-        /// less in 95 of 100 cases, most false ones 1-5 %; README Results).
+        /// the eighth pass, 0.05 before the seventeenth: right poses see through 0.4 % or
+        /// less in 95 of 100 cases, half the false ones 1 % or more; README Results).
         max_free_space: f64 = 0.03, within(0.0, 1.0, "");
         /// At most this share of the part may lie behind a support plane (sunk into the
         /// belt, floor or a bin wall by more than three view tolerances).
