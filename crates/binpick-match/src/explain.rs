@@ -66,12 +66,11 @@ pub struct ExplainConfig {
     /// A hypothesis must explain at least this share of its confirmed cells that no taken
     /// part explains yet. Range 0-1.
     pub min_new_share: f64,
-    /// Gains within this share of the best are a tie. Among the tied, those the sensor saw
-    /// through least compete (a half-turned part shows where its flange differs). Between
-    /// different poses it is then won by the one with the most votes of its own (the view
-    /// cannot tell a near-symmetric part from its turn when the feature that differs is
-    /// hidden, the votes over the whole part can); between hypotheses of one pose by the
-    /// better gain. Range 0-1 (0 = the best gain wins).
+    /// Gains within this share of the best are a tie. Between different poses it is won by
+    /// the one with the most votes of its own (the view cannot tell a near-symmetric part
+    /// from its turn when the feature that differs is hidden, the votes over the whole part
+    /// can); between hypotheses of one pose by the better gain. Range 0-1 (0 = the best
+    /// gain wins).
     pub tie_share: f64,
 }
 
@@ -273,7 +272,7 @@ pub fn explain_scene(
             gains.push((gain, i));
         }
         open = still_open;
-        let i = match choose(&gains, scores, votes, &same_pose, config.tie_share) {
+        let i = match choose(&gains, votes, &same_pose, config.tie_share) {
             Some(i) => i,
             // Parts that touch at one height carry on each other's outline, so each waits
             // for the other; one whose outline the others waiting explain breaks the wait.
@@ -299,57 +298,32 @@ pub fn explain_scene(
 }
 
 /// The hypothesis to take among `gains` ((gain, index), none waiting): the best gain, or in
-/// a near-tie (`tie_share`) the one the sensor saw through least, then the pose with more
-/// votes of its own (see [`explain_scene`]).
+/// a near-tie (`tie_share`) the pose with more votes of its own (see [`explain_scene`]).
 fn choose(
     gains: &[(f64, usize)],
-    scores: &[ViewScore],
     votes: &[u32],
     same_pose: &impl Fn(usize, usize) -> bool,
     tie_share: f64,
 ) -> Option<usize> {
     // Best gain first, then the lower index.
     let better = |a: &(f64, usize), b: &(f64, usize)| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1));
-    let top = gains.iter().max_by(|a, b| better(a, b))?.0;
+    let &(top, best) = gains.iter().max_by(|a, b| better(a, b))?;
     let tied: Vec<&(f64, usize)> = gains
         .iter()
         .filter(|(g, _)| *g >= top - tie_share * top.abs())
         .collect();
-    // A half-turned part scores within a tie of the right pose where the flange that tells
-    // them apart shows a few cells; the sensor seeing through it there is the evidence.
-    let least_seen_through = tied.iter().map(|t| scores[t.1].free_space).min()?;
-    let tied: Vec<&(f64, usize)> = tied
-        .into_iter()
-        .filter(|t| scores[t.1].free_space == least_seen_through)
-        .collect();
-    let best = tied.iter().max_by(|a, b| better(a, b))?.1;
-    // A pose's votes are those of every open hypothesis of it, tied or not: the right pose
-    // voted most can fall just outside the band while its unvoted turn's twin is in it.
-    let pose_votes = |i: usize| -> u64 {
-        gains
-            .iter()
-            .filter(|g| g.1 == i || same_pose(g.1, i))
-            .map(|g| u64::from(votes[g.1]))
-            .sum()
-    };
-    let tied_votes: Vec<u64> = tied.iter().map(|t| pose_votes(t.1)).collect();
-    let voted = (0..tied.len())
-        .max_by(|&a, &b| {
-            tied_votes[a]
-                .cmp(&tied_votes[b])
-                .then(better(tied[a], tied[b]))
-        })
-        .map_or(best, |k| tied[k].1);
-    Some(
-        if pose_votes(voted) > pose_votes(best) && !same_pose(voted, best) {
-            tied.iter()
-                .filter(|t| t.1 == voted || same_pose(t.1, voted))
-                .max_by(|a, b| better(a, b))
-                .map_or(voted, |t| t.1)
-        } else {
-            best
-        },
-    )
+    let voted = tied
+        .iter()
+        .max_by(|a, b| votes[a.1].cmp(&votes[b.1]).then(better(a, b)))
+        .map_or(best, |t| t.1);
+    Some(if votes[voted] > votes[best] && !same_pose(voted, best) {
+        tied.iter()
+            .filter(|t| t.1 == voted || same_pose(t.1, voted))
+            .max_by(|a, b| better(a, b))
+            .map_or(voted, |t| t.1)
+    } else {
+        best
+    })
 }
 
 /// When every open hypothesis waits for its outline ((gain, index, continuation no taken
@@ -750,72 +724,6 @@ mod tests {
             explain_scene(&scores, &votes[..2], different, &[false; 3000], &config),
             Err(MatchError::Count { .. })
         ));
-    }
-
-    #[test]
-    fn a_near_tie_goes_first_to_the_pose_seen_through_least() {
-        // An edge-on part and its half turn: the turn, voted more, explains 1 % more cells,
-        // but the sensor saw through 3 of its cells where its other flange would be.
-        let right = explaining(0..1000, 0.9, 1100);
-        let turn = ViewScore {
-            free_space: 3,
-            ..explaining(0..1010, 0.9, 1100)
-        };
-        let votes = [77, 194];
-        let config = ExplainConfig {
-            tie_share: 0.02,
-            ..square_parts()
-        };
-        let different = |_: usize, _: usize| false;
-        let scores = [right.clone(), turn.clone()];
-        let e = explain_scene(&scores, &votes, different, &[false; 2000], &config).unwrap();
-        assert_eq!(
-            e.taken,
-            vec![0],
-            "the pose not seen through wins the near-tie"
-        );
-        assert_eq!(e.rejected[1], Some(Rejection::Explained));
-        // Seen through alike, the votes decide; beyond the tie band, the gain.
-        let alike = [
-            ViewScore {
-                free_space: 3,
-                ..right
-            },
-            turn,
-        ];
-        let e = explain_scene(&alike, &votes, different, &[false; 2000], &config).unwrap();
-        assert_eq!(e.taken, vec![1]);
-        let strict = ExplainConfig {
-            tie_share: 0.0,
-            ..config
-        };
-        let e = explain_scene(&scores, &votes, different, &[false; 2000], &strict).unwrap();
-        assert_eq!(e.taken, vec![1]);
-    }
-
-    #[test]
-    fn a_poses_votes_count_its_hypotheses_outside_the_tie() {
-        // Right pose: voted (0) and the turn of the wrong one (2); wrong pose: voted (1) and
-        // the turn of the right one (3). The right pose's voted hypothesis falls just
-        // outside the band, the wrong one's just inside.
-        let scores = [
-            explaining(0..970, 0.9, 1100),
-            explaining(0..985, 0.9, 1100),
-            explaining(0..1000, 0.9, 1100),
-            explaining(0..990, 0.9, 1100),
-        ];
-        let votes = [33_413, 30_341, 0, 0];
-        let config = ExplainConfig {
-            tie_share: 0.02,
-            ..square_parts()
-        };
-        let same = |i: usize, j: usize| i % 2 == j % 2;
-        let e = explain_scene(&scores, &votes, same, &[false; 1000], &config).unwrap();
-        assert_eq!(
-            e.taken,
-            vec![2],
-            "the pose voted most wins, by its best hypothesis"
-        );
     }
 
     #[test]

@@ -542,13 +542,11 @@ stage_config! {
         free_space_weight: f64 = 2.0, within(0.0, 100.0, "");
         /// A hypothesis must newly explain this share of its cells (else it repeats a part).
         min_new_share: f64 = 0.5, within(0.0, 1.0, "");
-        /// In the competition, gains within this share of the best are a tie. Of the tied,
-        /// those the sensor saw through least compete (a half-turned part shows where its
-        /// flange differs). Between different poses the one with the most votes for its own
-        /// pose then wins (a near-symmetric turn has none): with the flange that tells a part
-        /// from its turn hidden, the view scores both alike, the votes over the whole part
-        /// do not. Between hypotheses of one pose the better fit wins. 0 = the best gain
-        /// wins.
+        /// In the competition, gains within this share of the best are a tie. Between
+        /// different poses the one with the most votes for its own pose wins (a
+        /// near-symmetric turn has none): with the flange that tells a part from its turn
+        /// hidden, the view scores both alike, the votes over the whole part do not. Between
+        /// hypotheses of one pose the better fit wins. 0 = the best gain wins.
         tie_share: f64 = 0.01, within(0.0, 1.0, "");
         /// ICP iterations per refinement pass (two passes: coarse, then fine).
         refine_iterations: u32 = 15, count(1, 1000, "");
