@@ -21,9 +21,9 @@ pub const HOPELESS_SHARE: f64 = 0.5;
 /// A pose refused for free space has its turns tried while the sensor saw through at most
 /// this share of it ([`ExplainConfig::worth_turning`]; beyond, it lies over clutter and its
 /// turns there are false detections: any share tried added 1.3 per scan on the plates belt
-/// set of seed 1). A share of its own, not a multiple of `max_free_space`: a half-turned
-/// part sees through about 6 % of it (the touching pair of the pipeline tests), whatever
-/// the limit for accepting a pose.
+/// set of seed 1). A share of its own, not a multiple of `max_free_space`: a part voted the
+/// wrong way round sees through about 6 % of itself (one of the touching pair of the
+/// pipeline tests, whose right pose is its turn), whatever the limit for accepting a pose.
 pub const TURN_MAX_FREE_SPACE: f64 = 0.10;
 
 /// Acceptance of one hypothesis and the competition between them.
