@@ -599,7 +599,7 @@ mod tests {
             "hardly seen"
         );
         // The turn limit is a share of its own: a stricter acceptance still turns a pose
-        // seeing through 6-10 % (a half-turned part beside its twin does).
+        // seeing through 6-10 % (a part voted the wrong way round does).
         let strict = ExplainConfig {
             max_free_space: 0.03,
             ..config
