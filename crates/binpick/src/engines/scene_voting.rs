@@ -98,19 +98,14 @@ impl SceneVoting<'_> {
             .zip(support)
             .filter_map(|(q, s)| (!s).then_some(*q))
             .collect();
-        let towards = viewpoint(&sensor, points);
-        let bounding = bounding_planes(
-            self.support_planes,
-            &world,
-            sunk_depth_mm(self.scale),
-            towards,
-        );
+        let bounding = bounding_planes(self.support_planes, &world, sunk_depth_mm(self.scale));
         let planes: Vec<([f64; 4], bool)> = self
             .support_planes
             .iter()
             .zip(&bounding)
             .map(|(c, b)| (*c, b.is_some()))
             .collect();
+        let towards = viewpoint(&sensor, points);
         // PCL's normals and the view normals' index (each built on one core) side by side.
         let (normals, index) = rayon::join(
             || {

@@ -505,15 +505,12 @@ pub(crate) fn sunk_depth_mm(scale: &DerivedScale) -> f64 {
 
 /// For each support plane (`a x + b y + c z + d = 0`), whether it bounds the parts, with its
 /// normal turned towards them: it does when (almost) all the scene's non-support points
-/// `world` lie on one side of it, beyond `depth` mm (`MAX_BEHIND_RATIO`), and the sensor at
-/// `sensor` (a viewpoint, see [`viewpoint`]) is on that side too. A plane with parts on both
-/// sides (RANSAC laid across the tops of a layer of parts, say) bounds nothing; nor does one
-/// the parts lie behind as the sensor sees them (a bin's rim, with parts heaped above it).
+/// `world` lie on one side of it, beyond `depth` mm (`MAX_BEHIND_RATIO`). A plane with parts
+/// on both sides (RANSAC laid across the tops of a layer of parts, say) bounds nothing.
 pub(crate) fn bounding_planes(
     planes: &[[f64; 4]],
     world: &[Point],
     depth: f64,
-    sensor: [f64; 3],
 ) -> Vec<Option<(Vector3<f64>, f64)>> {
     planes
         .iter()
@@ -534,9 +531,7 @@ pub(crate) fn bounding_planes(
             } else {
                 (behind, front, -1.0)
             };
-            // The sensor sees the belt, floor or wall behind the parts, never in front.
-            let sensor_side = sign * (n.dot(&Vector3::from(sensor)) + d) > 0.0;
-            (major > 0 && minor as f64 <= MAX_BEHIND_RATIO * major as f64 && sensor_side)
+            (major > 0 && minor as f64 <= MAX_BEHIND_RATIO * major as f64)
                 .then_some((n * sign, d * sign))
         })
         .collect()
@@ -564,41 +559,5 @@ pub(crate) fn view_check(s: &ViewScore) -> ViewCheck {
         visible_cells: s.visible,
         below_support: s.below_support_ratio(),
         on_support: s.support_explained_ratio(),
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_plane_bounds_the_parts_only_when_the_sensor_sees_it_behind_them() {
-        // Parts between a floor (z = 0) and a bin's rim (z = 100), a scanner far above.
-        let parts: Vec<Point> = (0..100)
-            .map(|i| [i as f32, 0.0, 10.0 + 0.8 * i as f32])
-            .collect();
-        let floor = [0.0, 0.0, 1.0, 0.0];
-        let rim = [0.0, 0.0, 1.0, -100.0];
-        let above = [0.0, 0.0, 5000.0];
-        let b = bounding_planes(&[floor, rim], &parts, 1.0, above);
-        let (n, d) = b[0].expect("the floor bounds the parts");
-        assert!(
-            n.z > 0.0 && d.abs() < 1e-12,
-            "normal towards the parts: {n:?}"
-        );
-        assert!(
-            b[1].is_none(),
-            "the rim is in front of the parts: {:?}",
-            b[1]
-        );
-        // Seen from below (through a glass floor), the rim would bound them and the floor not.
-        let below = [0.0, 0.0, -5000.0];
-        let b = bounding_planes(&[floor, rim], &parts, 1.0, below);
-        assert!(b[0].is_none());
-        let (n, _) = b[1].expect("the rim bounds the parts seen from below");
-        assert!(n.z < 0.0);
-        // Parts on both sides bound nothing, wherever the sensor is.
-        let across = [0.0, 0.0, 1.0, -50.0];
-        assert!(bounding_planes(&[across], &parts, 1.0, above)[0].is_none());
     }
 }
