@@ -57,6 +57,9 @@ pub struct ExplainConfig {
     /// Largest share of the model's surface that may lie behind a support plane (the part
     /// sunk into the belt, floor or a wall). Range 0-1.
     pub max_below_support: f64,
+    /// Deepest any point of the part may lie behind a support plane, mm. Range >= 0
+    /// (infinite: off).
+    pub max_sunk_mm: f64,
     /// Largest share of its confirmed cells that the support (belt, floor, wall) may confirm:
     /// a part is seen by its own surface. Range 0-1.
     pub max_explained_by_support: f64,
@@ -94,6 +97,12 @@ impl ExplainConfig {
             if !unit(share) {
                 return Err(MatchError::config(name, "expected 0-1"));
             }
+        }
+        if self.max_sunk_mm.is_nan() || self.max_sunk_mm < 0.0 {
+            return Err(MatchError::config(
+                "max_sunk_mm",
+                "expected >= 0 (infinite: off)",
+            ));
         }
         if !(self.edge_on_cells.is_finite() && self.edge_on_cells >= 0.0) {
             return Err(MatchError::config("edge_on_cells", "expected >= 0"));
@@ -158,7 +167,7 @@ impl ExplainConfig {
             Some(Rejection::LowVisibility)
         } else if s.free_space_ratio() > self.max_free_space {
             Some(Rejection::FreeSpace)
-        } else if s.below_support_ratio() > self.max_below_support {
+        } else if s.sunk_mm > self.max_sunk_mm || s.below_support_ratio() > self.max_below_support {
             Some(Rejection::BelowSupport)
         } else if s.support_explained_ratio() > self.max_explained_by_support {
             Some(Rejection::OnSupport)
@@ -179,7 +188,8 @@ pub enum Rejection {
     LowVisibility,
     /// Free-space contradictions above `max_free_space`.
     FreeSpace,
-    /// More than `max_below_support` of the part lies behind a support plane.
+    /// More than `max_below_support` of the part, or its deepest point by more than
+    /// `max_sunk_mm`, lies behind a support plane.
     BelowSupport,
     /// More than `max_explained_by_support` of its confirmed surface is support.
     OnSupport,
@@ -415,6 +425,7 @@ mod tests {
             occluded_below_visibility: 0.5,
             min_explained_cells: 10,
             max_below_support: 1.0,
+            max_sunk_mm: f64::INFINITY,
             max_explained_by_support: 1.0,
             free_space_weight: 2.0,
             min_new_share: 0.5,
@@ -568,6 +579,33 @@ mod tests {
             .validate()
             .is_err()
         );
+    }
+
+    #[test]
+    fn a_part_sunk_into_its_support_is_refused_by_its_deepest_point_or_its_share() {
+        let config = ExplainConfig {
+            max_below_support: 0.05,
+            max_sunk_mm: 3.0,
+            ..square_parts()
+        };
+        let seen = explaining(0..100, 0.9, 100);
+        assert_eq!(config.rejection(&seen), None);
+        let dipping = |sunk_mm: f64| ViewScore {
+            sunk_mm,
+            ..seen.clone()
+        };
+        assert_eq!(config.rejection(&dipping(2.9)), None);
+        // A corner 4 mm deep: a small share of the part, refused all the same.
+        assert_eq!(
+            config.rejection(&dipping(4.0)),
+            Some(Rejection::BelowSupport)
+        );
+        let sunk = ViewScore {
+            below_support: 6,
+            support_checked: 100,
+            ..seen
+        };
+        assert_eq!(config.rejection(&sunk), Some(Rejection::BelowSupport));
     }
 
     #[test]

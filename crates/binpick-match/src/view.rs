@@ -280,6 +280,10 @@ pub struct ViewScore {
     /// cannot sink into what carries it. Filled by the caller, which knows the planes.
     pub below_support: u32,
     pub support_checked: u32,
+    /// How deep the part's deepest point lies behind a support plane, mm (0 when none
+    /// does): a resting part touches its support, so only pose error sinks it. Filled by
+    /// the caller.
+    pub sunk_mm: f64,
     /// Explained cells whose best-fitting scene surface is background (belt, floor, wall)
     /// lying farther from the model than the support band: a part laid on the support
     /// rather than seen.

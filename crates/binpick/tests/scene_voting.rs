@@ -212,6 +212,7 @@ fn a_part_sunk_into_its_support_is_refused_and_true_poses_in_a_bin_are_not() {
             .check_pose(&bin.scene, None, truth, false)
             .unwrap();
         assert!(check.view.below_support < 0.01, "{check:#?}");
+        assert!(check.view.sunk_mm < 1.0, "{check:#?}");
     }
     // Pushed a third of its size down into the belt, a part is mostly behind the belt.
     let s = belt_scan(0);
@@ -223,6 +224,42 @@ fn a_part_sunk_into_its_support_is_refused_and_true_poses_in_a_bin_are_not() {
         .unwrap();
     assert!(check.view.below_support > 0.3, "{check:#?}");
     assert!(check.refusal.is_some(), "{check:#?}");
+}
+
+#[test]
+fn a_flat_part_mirrored_under_the_floor_is_found_sunk_by_its_deepest_point() {
+    // A ring lying flat on a depth camera's bin floor, mirrored about the floor: its top face
+    // now lies level with the floor and all of it behind, yet no point deeper than the
+    // sunk-point tolerance of `max_below_support` (3 view tolerances, 5 mm here, beyond the
+    // ring's 4 mm). Its deepest point, 4 mm behind the floor, is past `max_sunk_tolerances`
+    // (the refusal that follows: `explain` tests).
+    let s = set_scan(PartKind::Ring, "rings-bin-depth", 0, Params::default());
+    let on_floor = s
+        .pickable
+        .iter()
+        .filter(|p| p.rotation.transform_vector(&Vector3::z()).z.abs() > 0.99)
+        .min_by(|a, b| a.translation.z.total_cmp(&b.translation.z))
+        .expect("a flat ring in scan 0");
+    assert!(on_floor.translation.z < 3.0, "{on_floor:?}");
+    let check = |pose: &Isometry3<f64>| {
+        s.recognizer
+            .check_pose(&s.scene, None, pose, false)
+            .unwrap()
+    };
+    let resting = check(on_floor);
+    assert!(resting.view.sunk_mm < 1.0, "{resting:#?}");
+    let mut mirrored = *on_floor;
+    mirrored.translation.z = -on_floor.translation.z;
+    let sunk = check(&mirrored);
+    let defaults = Params::default().verify;
+    assert!(
+        sunk.view.below_support <= defaults.max_below_support,
+        "{sunk:#?}"
+    );
+    assert!(
+        (3.5..4.5).contains(&sunk.view.sunk_mm),
+        "the ring's 4 mm behind the floor: {sunk:#?}"
+    );
 }
 
 #[test]

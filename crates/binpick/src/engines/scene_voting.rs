@@ -98,7 +98,18 @@ impl SceneVoting<'_> {
             .zip(support)
             .filter_map(|(q, s)| (!s).then_some(*q))
             .collect();
-        let bounding = bounding_planes(self.support_planes, &world, sunk_depth_mm(self.scale));
+        let on_support: Vec<Point> = points
+            .iter()
+            .zip(support)
+            .filter_map(|(q, s)| s.then_some(*q))
+            .collect();
+        let bounding = bounding_planes(
+            self.support_planes,
+            &world,
+            &on_support,
+            sunk_depth_mm(self.scale),
+            self.scale.support_distance_mm,
+        );
         let planes: Vec<([f64; 4], bool)> = self
             .support_planes
             .iter()
@@ -648,6 +659,7 @@ impl SceneVoting<'_> {
             min_visibility: v.min_visibility,
             max_free_space: v.max_free_space,
             max_below_support: v.max_below_support,
+            max_sunk_mm: v.max_sunk_tolerances * verifier.tolerance_mm(),
             // Applied to later rounds only (`detect`).
             max_explained_by_support: 1.0,
             max_continued: v.max_continued,
@@ -709,7 +721,7 @@ impl SceneVoting<'_> {
                     }
                     Rejection::FreeSpace => "the sensor saw through it (max_free_space)",
                     Rejection::BelowSupport => {
-                        "it sinks into the belt, floor or a wall (max_below_support)"
+                        "it sinks into the belt, floor or a wall (max_below_support, max_sunk_tolerances)"
                     }
                     Rejection::OnSupport => {
                         "the belt, floor or a wall confirms most of it (max_explained_by_support)"

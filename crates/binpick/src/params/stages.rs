@@ -495,6 +495,10 @@ stage_config! {
         /// At most this share of the part may lie behind a support plane (sunk into the
         /// belt, floor or a bin wall by more than three view tolerances).
         max_below_support: f64 = 0.05, within(0.0, 1.0, "");
+        /// No point of the part may lie deeper than this many view tolerances behind such a
+        /// plane: a resting part touches it, and pose error dips a corner a tolerance or so
+        /// (a bent plate's flange 15 mm in the floor is a small share of the part).
+        max_sunk_tolerances: f64 = 2.0, within(0.0, 100.0, "x tolerance");
         /// Candidates of later voting rounds (voted from what the taken parts leave
         /// unexplained, bin rims included): at most this share of their confirmed surface
         /// may be belt, floor or wall (a part laid on the support, not seen). Not applied in

@@ -31,6 +31,11 @@ const OUTLIER_RESOLUTIONS: f64 = 4.0;
 const FAR_MM: f64 = 1e7;
 /// Model points checked against the support planes per pose.
 const SUPPORT_SAMPLE_POINTS: usize = 400;
+/// Directions the model's extreme points are found along (its deepest point behind a plane:
+/// 256 leave at most about 7 deg between a plane's normal and the nearest direction).
+const EXTREME_DIRECTIONS: usize = 256;
+/// Support planes within this angle are parallel (a layer of parts on the floor).
+const PARALLEL_DEG: f64 = 10.0;
 /// A model point is behind a support plane when it lies this many view tolerances beyond it
 /// (a resting part touches its support; noise and a slight tilt stay well inside).
 const SUPPORT_TOLERANCES: f64 = 3.0;
@@ -38,6 +43,10 @@ const SUPPORT_TOLERANCES: f64 = 3.0;
 /// most this share of those in front (outliers: measured 0.5-3 % behind floors and walls of
 /// the generalisation benchmark; 20-60 % for planes RANSAC laid across tops of parts).
 const MAX_BEHIND_RATIO: f64 = 0.05;
+/// ... or number at most this share of the plane's own points (measured: 55-65 outliers
+/// behind 2 mm bin floors of 27 000-30 000 points, 0.2 %; planes laid across the tops of a
+/// layer of rods or shafts have 6-12 % of their own points behind them).
+const MAX_OUTLIER_RATIO: f64 = 0.005;
 
 /// Asked mid-refinement whether the pose reached is worth refining further.
 pub(crate) type Probe<'a> = dyn FnMut(&Isometry3<f64>) -> bool + 'a;
@@ -142,6 +151,12 @@ pub(crate) struct Verifier<'a> {
     planes: Vec<(Vector3<f64>, f64)>,
     /// A fixed sample of the model's surface checked against them (model frame).
     support_sample: Vec<Point3<f64>>,
+    /// The model's points farthest out along a spread of directions (model frame): its
+    /// deepest point behind any plane is one of them, or within a sample spacing of one.
+    extremes: Vec<Point3<f64>>,
+    /// The planes a part's deepest point is checked against: those that can carry a part
+    /// (`sink_planes`).
+    sink_planes: Vec<(Vector3<f64>, f64)>,
     /// Per grid cell: the scene's surface there is one of those planes. The plane explains
     /// it already; a part explaining it too gains nothing (a pose laid half on the floor).
     pub support_explained: Vec<bool>,
@@ -164,6 +179,10 @@ impl<'a> Verifier<'a> {
         cfg: &'a VerifyConfig,
     ) -> Result<Self> {
         let view = view_config(scale, cfg);
+        let towards_sensor = match &sensor {
+            Sensor::Orthographic { up } => *up,
+            Sensor::Perspective { axis, .. } => -axis,
+        };
         // The view grid and the scene's search trees are independent: built side by side.
         let (grid, (world, (ribbons, world_index))) = rayon::join(
             || {
@@ -216,6 +235,8 @@ impl<'a> Verifier<'a> {
                 &model.dense.points,
                 SUPPORT_SAMPLE_POINTS,
             ),
+            extremes: extreme_points(&model.dense.points, EXTREME_DIRECTIONS),
+            sink_planes: sink_planes(&scene.bounding, scale.model_diameter_mm, &towards_sensor),
             grid,
             view,
             world: world?,
@@ -462,6 +483,17 @@ impl<'a> Verifier<'a> {
                         .any(|(n, d)| n.dot(&q.coords) + d < -depth)
                 })
                 .count() as u32;
+            s.sunk_mm = self
+                .extremes
+                .iter()
+                .map(|p| {
+                    let q = pose * p;
+                    self.sink_planes
+                        .iter()
+                        .map(|(n, d)| -(n.dot(&q.coords) + d))
+                        .fold(0.0, f64::max)
+                })
+                .fold(0.0, f64::max);
         }
         s
     }
@@ -482,6 +514,11 @@ impl<'a> Verifier<'a> {
         }
     }
 
+    /// The view tolerance, mm.
+    pub(crate) fn tolerance_mm(&self) -> f64 {
+        self.scale.tolerance_mm
+    }
+
     /// Cells of the model's typical view (its view area over the cell area).
     pub(crate) fn typical_cells(&self) -> f64 {
         typical_cells(self.scale)
@@ -498,6 +535,72 @@ pub(crate) fn edge_on_cells(scale: &DerivedScale) -> f64 {
     EDGE_ON_VIEW_SHARE * typical_cells(scale)
 }
 
+/// The model's points farthest out along `directions` directions spread over the sphere
+/// (Fibonacci lattice), without repeats, in first-found order.
+fn extreme_points(points: &[Point], directions: usize) -> Vec<Point3<f64>> {
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    let mut picked: Vec<usize> = Vec::new();
+    for k in 0..directions {
+        let z = 1.0 - 2.0 * (k as f64 + 0.5) / directions as f64;
+        let r = (1.0 - z * z).sqrt();
+        let u = Vector3::new(
+            r * (golden * k as f64).cos(),
+            r * (golden * k as f64).sin(),
+            z,
+        );
+        let far = points.iter().enumerate().max_by(|a, b| {
+            let along = |p: &Point| {
+                u.dot(&Vector3::new(
+                    f64::from(p[0]),
+                    f64::from(p[1]),
+                    f64::from(p[2]),
+                ))
+            };
+            along(a.1).total_cmp(&along(b.1))
+        });
+        if let Some((i, _)) = far
+            && !picked.contains(&i)
+        {
+            picked.push(i);
+        }
+    }
+    picked
+        .into_iter()
+        .map(|i| {
+            let p = points[i];
+            Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]))
+        })
+        .collect()
+}
+
+/// The bounding planes (normals towards the parts) that can carry a part: not one facing
+/// away from the sensor (`towards_sensor`), a bin's rim, which parts heaped high stick out
+/// past; nor one in front of a parallel plane by less than `diameter_mm`, RANSAC laid across
+/// the tops of a layer of flat parts on the floor (rings 4 mm thick), which bounds the rest
+/// by their points while a part on the floor lies behind it by its thickness.
+fn sink_planes(
+    planes: &[(Vector3<f64>, f64)],
+    diameter_mm: f64,
+    towards_sensor: &Vector3<f64>,
+) -> Vec<(Vector3<f64>, f64)> {
+    let parallel = PARALLEL_DEG.to_radians().cos();
+    planes
+        .iter()
+        .enumerate()
+        .filter(|&(i, &(n, d))| {
+            let on_plane = -d * n;
+            if n.dot(towards_sensor) < -parallel {
+                return false;
+            }
+            !planes.iter().enumerate().any(|(j, &(m, e))| {
+                let ahead = m.dot(&on_plane) + e;
+                j != i && n.dot(&m) > parallel && ahead > 0.0 && ahead < diameter_mm
+            })
+        })
+        .map(|(_, &p)| p)
+        .collect()
+}
+
 /// How far behind a support plane a model point counts as sunk, mm.
 pub(crate) fn sunk_depth_mm(scale: &DerivedScale) -> f64 {
     SUPPORT_TOLERANCES * scale.tolerance_mm
@@ -505,12 +608,17 @@ pub(crate) fn sunk_depth_mm(scale: &DerivedScale) -> f64 {
 
 /// For each support plane (`a x + b y + c z + d = 0`), whether it bounds the parts, with its
 /// normal turned towards them: it does when (almost) all the scene's non-support points
-/// `world` lie on one side of it, beyond `depth` mm (`MAX_BEHIND_RATIO`). A plane with parts
-/// on both sides (RANSAC laid across the tops of a layer of parts, say) bounds nothing.
+/// `world` lie on one side of it, beyond `depth` mm (`MAX_BEHIND_RATIO`), or when those
+/// behind it are as few as a sensor's outliers behind the plane's own points (the support
+/// points `support` within `on_plane_mm`; `MAX_OUTLIER_RATIO`: a few thin rods on a large
+/// floor). A plane with parts on both sides
+/// (RANSAC laid across the tops of a layer of parts, say) bounds nothing.
 pub(crate) fn bounding_planes(
     planes: &[[f64; 4]],
     world: &[Point],
+    support: &[Point],
     depth: f64,
+    on_plane_mm: f64,
 ) -> Vec<Option<(Vector3<f64>, f64)>> {
     planes
         .iter()
@@ -531,8 +639,16 @@ pub(crate) fn bounding_planes(
             } else {
                 (behind, front, -1.0)
             };
-            (major > 0 && minor as f64 <= MAX_BEHIND_RATIO * major as f64)
-                .then_some((n * sign, d * sign))
+            let on_plane = support
+                .iter()
+                .filter(|p| {
+                    let q = Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+                    (n.dot(&q) + d).abs() <= on_plane_mm
+                })
+                .count();
+            let few = minor as f64 <= MAX_BEHIND_RATIO * major as f64
+                || minor as f64 <= MAX_OUTLIER_RATIO * on_plane as f64;
+            (major > 0 && few).then_some((n * sign, d * sign))
         })
         .collect()
 }
@@ -558,6 +674,83 @@ pub(crate) fn view_check(s: &ViewScore) -> ViewCheck {
         acceptance_fit: s.mean_acceptance_fit(),
         visible_cells: s.visible,
         below_support: s.below_support_ratio(),
+        sunk_mm: s.sunk_mm,
         on_support: s.support_explained_ratio(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_layer_of_parts_on_the_floor_and_a_bins_rim_carry_no_part_and_the_walls_do() {
+        let floor = (Vector3::z(), 0.2);
+        let layer = (Vector3::new(0.005, -0.019, 1.0).normalize(), -3.35);
+        let rim = (-Vector3::z(), 80.0);
+        let wall = (Vector3::x(), 130.0);
+        let up = Vector3::z();
+        let kept = sink_planes(&[floor, layer, rim, wall], 50.0, &up);
+        assert_eq!(kept, vec![floor, wall]);
+        // A shelf a part's size above the floor is a support of its own.
+        let shelf = (Vector3::z(), -60.0);
+        assert_eq!(sink_planes(&[floor, shelf], 50.0, &up).len(), 2);
+    }
+
+    #[test]
+    fn a_large_floor_bounds_a_few_thin_parts_despite_its_outliers_and_a_layer_does_not() {
+        let grid = |n: usize, z: f32| -> Vec<Point> {
+            (0..n)
+                .map(|i| [(i % 200) as f32, (i / 200) as f32, z])
+                .collect()
+        };
+        // 1000 points of rods 5 mm above a 30 000-point floor, 60 outliers 10-25 mm below.
+        let floor = grid(30_000, 0.0);
+        let mut world = grid(1000, 5.0);
+        world.extend((0..60).map(|i| [i as f32, 0.0, -10.0 - (i % 16) as f32]));
+        let planes = [[0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 1.0, -8.0]];
+        let bounding = bounding_planes(&planes[..1], &world, &floor, 3.0, 1.0);
+        assert_eq!(bounding, vec![Some((Vector3::z(), 0.0))]);
+        // Without the floor's own points, 6 % behind it is too many.
+        assert_eq!(
+            bounding_planes(&planes[..1], &world, &[], 3.0, 1.0),
+            vec![None]
+        );
+        // A plane across the tops of a layer (800 of its own points, 8 mm up) with rods
+        // stacked 4 mm above it and 100 rod points 4 mm below bounds nothing.
+        world.extend(grid(300, 12.0));
+        world.extend(grid(100, 4.0));
+        let on = [floor, grid(800, 8.0)].concat();
+        assert_eq!(
+            bounding_planes(&planes[1..], &world, &on, 3.0, 1.0),
+            vec![None]
+        );
+    }
+
+    #[test]
+    fn the_extreme_points_hold_the_deepest_point_along_any_axis() {
+        // A 40 x 20 x 4 mm box sampled on a 1 mm grid over its volume.
+        let mut points: Vec<Point> = Vec::new();
+        for i in 0..=40 {
+            for j in 0..=20 {
+                for k in 0..=4 {
+                    points.push([i as f32 - 20.0, j as f32 - 10.0, k as f32 - 2.0]);
+                }
+            }
+        }
+        let extremes = extreme_points(&points, EXTREME_DIRECTIONS);
+        assert!(extremes.len() < 100, "{}", extremes.len());
+        for axis in [Vector3::x(), Vector3::y(), Vector3::z(), -Vector3::z()] {
+            let lowest = |ps: &mut dyn Iterator<Item = f64>| ps.fold(f64::MAX, f64::min);
+            let all = lowest(&mut points.iter().map(|p| {
+                axis.dot(&Vector3::new(
+                    f64::from(p[0]),
+                    f64::from(p[1]),
+                    f64::from(p[2]),
+                ))
+            }));
+            let ext = lowest(&mut extremes.iter().map(|p| axis.dot(&p.coords)));
+            assert_eq!(all, ext, "along {axis:?}");
+        }
     }
 }
