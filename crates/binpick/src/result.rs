@@ -146,8 +146,9 @@ pub struct ViewCheck {
     /// floor or a bin wall); 0 without support planes.
     #[serde(default)]
     pub below_support: f64,
-    /// How deep the part's deepest point lies behind a support plane that bounds the parts,
-    /// mm (0 when none does). Absent in older results: 0.
+    /// How deep the part's deepest point lies behind a support plane that can carry it (belt,
+    /// floor, wall; not a rim nor a plane across a layer of parts), mm (0 when none does).
+    /// Absent in older results: 0.
     #[serde(default)]
     pub sunk_mm: f64,
     /// Share of the confirmed surface whose scene surface is belt, floor or wall rather than

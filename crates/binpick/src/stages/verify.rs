@@ -639,15 +639,17 @@ pub(crate) fn bounding_planes(
             } else {
                 (behind, front, -1.0)
             };
-            let on_plane = support
-                .iter()
-                .filter(|p| {
-                    let q = Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
-                    (n.dot(&q) + d).abs() <= on_plane_mm
-                })
-                .count();
-            let few = minor as f64 <= MAX_BEHIND_RATIO * major as f64
-                || minor as f64 <= MAX_OUTLIER_RATIO * on_plane as f64;
+            // The plane's own points are counted only when the share alone does not do.
+            let few = minor as f64 <= MAX_BEHIND_RATIO * major as f64 || {
+                let on_plane = support
+                    .iter()
+                    .filter(|p| {
+                        let q = Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+                        (n.dot(&q) + d).abs() <= on_plane_mm
+                    })
+                    .count();
+                minor as f64 <= MAX_OUTLIER_RATIO * on_plane as f64
+            };
             (major > 0 && few).then_some((n * sign, d * sign))
         })
         .collect()
