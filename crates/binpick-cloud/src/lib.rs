@@ -144,20 +144,21 @@ pub fn centroid(points: &[Point]) -> Option<[f64; 3]> {
     Some([s[0] / n, s[1] / n, s[2] / n])
 }
 
+/// A point as an f64 nalgebra point, for pose arithmetic.
+pub fn to_point3(p: &Point) -> Point3<f64> {
+    Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]))
+}
+
 /// At most `max_points` of `points`, evenly strided (deterministic), as f64 points: a sample
 /// for pose comparisons.
 pub fn strided_points(points: &[Point], max_points: usize) -> Vec<Point3<f64>> {
     let step = points.len().div_ceil(max_points.max(1)).max(1);
-    points
-        .iter()
-        .step_by(step)
-        .map(|p| Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2])))
-        .collect()
+    points.iter().step_by(step).map(to_point3).collect()
 }
 
 /// Applies a rigid transform to one point.
 pub fn transform_point(pose: &Isometry3<f64>, p: &Point) -> Point {
-    let q = pose * Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+    let q = pose * to_point3(p);
     [q.x as f32, q.y as f32, q.z as f32]
 }
 

@@ -14,7 +14,7 @@ use std::collections::HashMap;
 use std::path::Path;
 
 use ab_glyph::FontRef;
-use binpick_cloud::PointCloud;
+use binpick_cloud::{PointCloud, to_point3};
 use image::RgbImage;
 use nalgebra::Vector3;
 
@@ -362,7 +362,7 @@ fn render(
         .points
         .iter()
         .filter(|p| finite3(p))
-        .map(|p| Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2])))
+        .map(|p| to_point3(p).coords)
         .collect();
     let scene_non_finite = scene.points.len() - scene_pts.len();
     if scene_pts.is_empty() {
@@ -374,7 +374,7 @@ fn render(
         .points
         .iter()
         .filter(|p| finite3(p))
-        .map(|p| Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2])))
+        .map(|p| to_point3(p).coords)
         .collect();
     let model_non_finite = model.points.len() - model_pts.len();
     if !placed.is_empty() && model_pts.is_empty() {

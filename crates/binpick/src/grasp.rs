@@ -11,7 +11,7 @@
 use nalgebra::{Isometry3, Point3, Unit, Vector3};
 use serde::{Deserialize, Serialize};
 
-use binpick_cloud::Point;
+use binpick_cloud::{Point, to_point3};
 
 use crate::error::{Result, input};
 use crate::result::Detection;
@@ -198,10 +198,6 @@ impl Corridor {
 /// A blocker found in a corridor: the detection's index (None: unexplained scene points) and
 /// its points there.
 type Found = (Option<usize>, usize);
-
-fn to_point3(p: &Point) -> Point3<f64> {
-    Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]))
-}
 
 /// Checks every grasp of every detection (scene frame), then moves the detections with no
 /// free grasp after the others (a stable partition of the engine's order), renumbers the

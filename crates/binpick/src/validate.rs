@@ -9,19 +9,13 @@
 //! | [`outlier_percent`]   | 3.1.2   | (100/m) sum_i [min_j \|\|o_i - w_j\|\| > d]                        | 0       | 100          |
 //! | [`normal_angle_score`]| 3.1.3   | (1/m) sum_i angle(n(o_i), n(w_nearest(i)))^2  (deg^2)          | 0       | 180^2        |
 
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Isometry3, Vector3};
 
-use binpick_cloud::Point;
+use binpick_cloud::{Point, transform_point};
 
 /// Exact nearest-neighbour index over a fixed set of points (kiddo's immutable kd-tree; the
 /// one the scene-voting engine uses too).
 pub use binpick_match::PointIndex as NearestIndex;
-
-#[inline]
-fn moved(pose: &Isometry3<f64>, p: &Point) -> Point {
-    let q = pose * Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
-    [q.x as f32, q.y as f32, q.z as f32]
-}
 
 /// Euclidean distance validation (thesis 3.1.1): the mean, over the model points placed by
 /// `pose`, of the squared distance to the nearest world point, mm^2. 0 is a perfect
@@ -32,7 +26,7 @@ pub fn euclidean_score(world: &NearestIndex, model: &[Point], pose: &Isometry3<f
     }
     let sum: f64 = model
         .iter()
-        .map(|p| f64::from(world.nearest(&moved(pose, p)).1))
+        .map(|p| f64::from(world.nearest(&transform_point(pose, p)).1))
         .sum();
     sum / model.len() as f64
 }
@@ -52,7 +46,7 @@ pub fn outlier_percent(
     let limit = (distance_mm * distance_mm) as f32;
     let outliers = model
         .iter()
-        .filter(|p| world.nearest(&moved(pose, p)).1 > limit)
+        .filter(|p| world.nearest(&transform_point(pose, p)).1 > limit)
         .count();
     100.0 * outliers as f64 / model.len() as f64
 }
@@ -72,7 +66,7 @@ pub fn normal_angle_score(
     let mut sum = 0.0;
     let mut n = 0usize;
     for (p, mn) in model.iter().zip(model_normals) {
-        let (j, _) = world.nearest(&moved(pose, p));
+        let (j, _) = world.nearest(&transform_point(pose, p));
         let Some(wn) = world_normals.get(j) else {
             continue;
         };

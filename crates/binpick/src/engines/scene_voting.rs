@@ -98,15 +98,10 @@ impl SceneVoting<'_> {
             .zip(support)
             .filter_map(|(q, s)| (!s).then_some(*q))
             .collect();
-        let on_support: Vec<Point> = points
-            .iter()
-            .zip(support)
-            .filter_map(|(q, s)| s.then_some(*q))
-            .collect();
         let bounding = bounding_planes(
             self.support_planes,
-            &world,
-            &on_support,
+            points,
+            support,
             sunk_depth_mm(self.scale),
             self.scale.support_distance_mm,
         );
@@ -466,11 +461,11 @@ impl SceneVoting<'_> {
             .iter()
             .flat_map(|&k| {
                 let pose = candidates[k].pose;
-                self.model.dense.points.iter().map(move |p| {
-                    let q = pose
-                        * nalgebra::Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
-                    [q.x as f32, q.y as f32, q.z as f32]
-                })
+                self.model
+                    .dense
+                    .points
+                    .iter()
+                    .map(move |p| binpick_cloud::transform_point(&pose, p))
             })
             .collect();
         if placed.is_empty() {

@@ -3,9 +3,9 @@
 //! PCL's `UniformSampling` and `NormalEstimationOMP`; every reference point votes
 //! (Drost et al. 2010) and the votes are clustered into poses under the part's symmetries.
 
-use nalgebra::{Isometry3, Point3};
+use nalgebra::{Isometry3, Point3, Vector3};
 
-use binpick_cloud::Point;
+use binpick_cloud::{Point, to_point3};
 use binpick_match::{
     OrientedPoints, PointIndex, PoseCluster, PoseClustering, PpfConfig, PpfModel, cluster_poses,
     subsample_by_facing,
@@ -30,6 +30,9 @@ pub(crate) fn matching(stage: &'static str) -> impl Fn(binpick_match::MatchError
 
 /// Model points a near-symmetry is judged on.
 const SYMMETRY_SAMPLE_POINTS: usize = 600;
+/// Directions the model's extreme points are found along (its deepest point behind a plane:
+/// 256 leave at most about 7 deg between a plane's normal and the nearest direction).
+const EXTREME_DIRECTIONS: usize = 256;
 
 /// A near-symmetric turn within this angle ...
 const DECLARED_SAME_DEG: f64 = 10.0;
@@ -48,6 +51,9 @@ pub(crate) struct VotingModel {
     pub centre: Point3<f64>,
     /// Half-turns about the principal axes that map the part nearly onto itself.
     pub near_symmetries: Vec<Isometry3<f64>>,
+    /// The points of `dense` farthest out along a spread of directions: the part's deepest
+    /// point behind any plane is one of them, or within a sample spacing of one.
+    pub extremes: Vec<Point3<f64>>,
 }
 
 impl VotingModel {
@@ -110,12 +116,39 @@ impl VotingModel {
         .collect();
         Ok(Self {
             centre: part.centre(),
+            extremes: extreme_points(&dense.points, EXTREME_DIRECTIONS),
             dense,
             table,
             rims,
             near_symmetries,
         })
     }
+}
+
+/// The model's points farthest out along `directions` directions spread over the sphere
+/// (Fibonacci lattice), without repeats, in first-found order.
+fn extreme_points(points: &[Point], directions: usize) -> Vec<Point3<f64>> {
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    let mut picked: Vec<usize> = Vec::new();
+    for k in 0..directions {
+        let z = 1.0 - 2.0 * (k as f64 + 0.5) / directions as f64;
+        let r = (1.0 - z * z).sqrt();
+        let u = Vector3::new(
+            r * (golden * k as f64).cos(),
+            r * (golden * k as f64).sin(),
+            z,
+        );
+        let far = points.iter().enumerate().max_by(|a, b| {
+            let along = |p: &Point| u.dot(&to_point3(p).coords);
+            along(a.1).total_cmp(&along(b.1))
+        });
+        if let Some((i, _)) = far
+            && !picked.contains(&i)
+        {
+            picked.push(i);
+        }
+    }
+    picked.into_iter().map(|i| to_point3(&points[i])).collect()
 }
 
 /// A part's rims: the point pairs of their profiles and which points of the dense surface
@@ -153,15 +186,15 @@ pub(crate) fn scene_normals(
     viewpoint: [f64; 3],
     threads: u32,
 ) -> Result<Vec<[f32; 3]>> {
-    let vp = nalgebra::Vector3::from(viewpoint);
+    let vp = Vector3::from(viewpoint);
     let on_plane = |p: &Point| -> Option<[f32; 3]> {
-        let q = nalgebra::Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+        let q = to_point3(p).coords;
         let distance = |c: &[f64; 4]| plane_distance_mm(c, p).abs();
         let (c, bounds) = planes
             .iter()
             .min_by(|a, b| distance(&a.0).total_cmp(&distance(&b.0)))?;
         bounds.then(|| {
-            let n = nalgebra::Vector3::new(c[0], c[1], c[2]);
+            let n = Vector3::new(c[0], c[1], c[2]);
             // As PCL flips: towards the viewpoint.
             let n = if n.dot(&(vp - q)) < 0.0 { -n } else { n };
             [n.x as f32, n.y as f32, n.z as f32]
@@ -211,7 +244,7 @@ pub(crate) fn view_normals(
     viewpoint: [f64; 3],
 ) -> Result<Vec<[f32; 3]>> {
     use rayon::prelude::*;
-    let vp = nalgebra::Vector3::from(viewpoint);
+    let vp = Vector3::from(viewpoint);
     Ok(points
         .par_iter()
         .zip(support)
@@ -226,7 +259,7 @@ pub(crate) fn view_normals(
             else {
                 return n;
             };
-            let to_sensor = (vp - vector(p)).normalize();
+            let to_sensor = (vp - to_point3(p).coords).normalize();
             let across = to_sensor - axis * axis.dot(&to_sensor);
             let len = across.norm();
             if len > 1e-6 {
@@ -245,14 +278,10 @@ pub(crate) fn view_normals_index(points: &[Point]) -> Result<PointIndex> {
     PointIndex::new("scene", points).map_err(matching("scene normals"))
 }
 
-fn vector(p: &Point) -> nalgebra::Vector3<f64> {
-    nalgebra::Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]))
-}
-
 /// The principal spreads (summed squares, mm^2, largest first) and axes of a set of points.
 struct Spread {
     values: [f64; 3],
-    axes: [nalgebra::Vector3<f64>; 3],
+    axes: [Vector3<f64>; 3],
 }
 
 impl Spread {
@@ -262,10 +291,14 @@ impl Spread {
         if n < 3 {
             return None;
         }
-        let mean = points.clone().map(vector).sum::<nalgebra::Vector3<f64>>() / n as f64;
+        let mean = points
+            .clone()
+            .map(|p| to_point3(p).coords)
+            .sum::<Vector3<f64>>()
+            / n as f64;
         let cov = points
             .map(|q| {
-                let d = vector(q) - mean;
+                let d = to_point3(q).coords - mean;
                 d * d.transpose()
             })
             .sum::<nalgebra::Matrix3<f64>>();
@@ -279,14 +312,14 @@ impl Spread {
     }
 
     /// The axis of a ribbon ([`RIBBON_SPREAD_RATIO`]).
-    fn ribbon_axis(&self) -> Option<nalgebra::Vector3<f64>> {
+    fn ribbon_axis(&self) -> Option<Vector3<f64>> {
         let [first, second, _] = self.values;
         (first > 0.0 && second < RIBBON_SPREAD_RATIO * first).then_some(self.axes[0])
     }
 
     /// The normal of a flat profile: a plane that the points fill in two directions
     /// ([`PROFILE_WIDTH`], [`PROFILE_FLATNESS`]).
-    fn profile_normal(&self) -> Option<nalgebra::Vector3<f64>> {
+    fn profile_normal(&self) -> Option<Vector3<f64>> {
         let [first, second, third] = self.values;
         (first > 0.0 && second > PROFILE_WIDTH * first && third < PROFILE_FLATNESS * second)
             .then_some(self.axes[2])
@@ -323,18 +356,20 @@ pub(crate) fn model_rims(
         .zip(&dense.normals)
         .map_init(Vec::new, |near, (p, n)| {
             index.within_into(p, radius as f32, near);
-            let n = vector(n);
+            let n = to_point3(n).coords;
             let face = near
                 .iter()
-                .filter(|&&k| vector(&dense.normals[k as usize]).dot(&n) > 0.5)
+                .filter(|&&k| to_point3(&dense.normals[k as usize]).coords.dot(&n) > 0.5)
                 .map(|&k| &dense.points[k as usize]);
             Spread::of(face).and_then(|s| s.ribbon_axis()).is_some()
         })
         .collect();
     let rim: Vec<usize> = (0..dense.len()).filter(|&i| on_rim[i]).collect();
     let rim_points: Vec<Point> = rim.iter().map(|&i| dense.points[i]).collect();
-    let facing: Vec<nalgebra::Vector3<f64>> =
-        rim.iter().map(|&i| vector(&dense.normals[i])).collect();
+    let facing: Vec<Vector3<f64>> = rim
+        .iter()
+        .map(|&i| to_point3(&dense.normals[i]).coords)
+        .collect();
     let profiled = profiles(&rim_points, diameter, |k, normal| {
         let c = normal.dot(&facing[k]);
         (c.abs() > RIM_FACING_COS).then(|| normal * c.signum())
@@ -373,7 +408,7 @@ pub(crate) fn scene_rims(
     if world.is_empty() || samples.is_empty() {
         return Ok((OrientedPoints::default(), Vec::new()));
     }
-    let vp = nalgebra::Vector3::from(viewpoint);
+    let vp = Vector3::from(viewpoint);
     let index = PointIndex::new("scene", world).map_err(matching("scene rims"))?;
     let ribbon = |p: &Point, near: &mut Vec<u32>| is_ribbon(world, &index, p, radius, near);
     let on_rim: Vec<bool> = samples
@@ -399,7 +434,7 @@ pub(crate) fn scene_rims(
         Err(_) => Vec::new(),
     };
     let profiled = profiles(&rim_points, diameter, |k, normal| {
-        let to_sensor = (vp - vector(&rim_points[k])).normalize();
+        let to_sensor = (vp - to_point3(&rim_points[k]).coords).normalize();
         let c = normal.dot(&to_sensor);
         (c.abs() > RIM_FACING_COS).then(|| normal * c.signum())
     });
@@ -411,14 +446,14 @@ pub(crate) fn scene_rims(
 fn profiles(
     rim: &[Point],
     diameter: f64,
-    orient: impl Fn(usize, nalgebra::Vector3<f64>) -> Option<nalgebra::Vector3<f64>> + Sync,
+    orient: impl Fn(usize, Vector3<f64>) -> Option<Vector3<f64>> + Sync,
 ) -> OrientedPoints {
     use rayon::prelude::*;
     let Ok(index) = PointIndex::new("rims", rim) else {
         return OrientedPoints::default();
     };
     let radius = (RIM_PROFILE_DIAMETERS * diameter) as f32;
-    let normals: Vec<Option<nalgebra::Vector3<f64>>> = rim
+    let normals: Vec<Option<Vector3<f64>>> = rim
         .par_iter()
         .enumerate()
         .map_init(Vec::new, |near, (k, p)| {
@@ -525,6 +560,27 @@ mod tests {
     use crate::params::Params;
     use crate::stages::scale::PartSize;
 
+    #[test]
+    fn the_extreme_points_hold_the_deepest_point_along_any_axis() {
+        // A 40 x 20 x 4 mm box sampled on a 1 mm grid over its volume.
+        let mut points: Vec<Point> = Vec::new();
+        for i in 0..=40 {
+            for j in 0..=20 {
+                for k in 0..=4 {
+                    points.push([i as f32 - 20.0, j as f32 - 10.0, k as f32 - 2.0]);
+                }
+            }
+        }
+        let extremes = extreme_points(&points, EXTREME_DIRECTIONS);
+        assert!(extremes.len() < 100, "{}", extremes.len());
+        for axis in [Vector3::x(), Vector3::y(), Vector3::z(), -Vector3::z()] {
+            let lowest = |ps: &mut dyn Iterator<Item = f64>| ps.fold(f64::MAX, f64::min);
+            let all = lowest(&mut points.iter().map(|p| axis.dot(&to_point3(p).coords)));
+            let ext = lowest(&mut extremes.iter().map(|p| axis.dot(&p.coords)));
+            assert_eq!(all, ext, "along {axis:?}");
+        }
+    }
+
     /// A tilted belt (z = 0.1 x) with a box standing on it, scanned from above.
     fn belt_with_box() -> (Vec<Point>, Vec<bool>, [f64; 4]) {
         let tilt = 0.1f64;
@@ -610,7 +666,7 @@ mod tests {
         let strip = points.len();
         // A tilted face of a part (z = 0.3 x + 10) with its fitted normals, and a floor strip.
         let tilted = {
-            let n = nalgebra::Vector3::new(-0.3f32, 0.0, 1.0).normalize();
+            let n = Vector3::new(-0.3f32, 0.0, 1.0).normalize();
             [n.x, n.y, n.z]
         };
         for i in 0..20 {

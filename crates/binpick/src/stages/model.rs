@@ -1,7 +1,7 @@
 //! Everything that depends only on the model, computed once per `Recognizer` (the thesis
 //! recomputed it per cluster; 5.7 notes it "can be precomputed offline").
 
-use binpick_cloud::{Point, PointCloud};
+use binpick_cloud::{Point, PointCloud, to_point3};
 use binpick_pcl::{IcpParams, IndexedCloud};
 use nalgebra::{Isometry3, Matrix3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
 use rayon::prelude::*;
@@ -132,10 +132,7 @@ pub(crate) fn near_symmetries(
     diameter_mm: f64,
     icp: &(dyn Fn(&Isometry3<f64>) -> IcpParams + Sync),
 ) -> Result<Vec<Isometry3<f64>>> {
-    let pts: Vec<Vector3<f64>> = cloud
-        .iter()
-        .map(|p| Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2])))
-        .collect();
+    let pts: Vec<Vector3<f64>> = cloud.iter().map(|p| to_point3(p).coords).collect();
     let n = pts.len() as f64;
     let c = pts.iter().sum::<Vector3<f64>>() / n;
     let cov = pts.iter().fold(Matrix3::zeros(), |acc, p| {

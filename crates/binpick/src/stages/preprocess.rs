@@ -7,7 +7,7 @@
 use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
 
-use binpick_cloud::{Point, PointCloud};
+use binpick_cloud::{Point, PointCloud, to_point3};
 
 use crate::deadline::Deadline;
 use crate::error::{InputKind, Result, input_as, pcl};
@@ -530,7 +530,7 @@ fn large_patches(points: &[Point], plane: [f32; 4], cell_mm: f64, min: PatchMin)
     let u = n.cross(&helper).normalize();
     let v = n.cross(&u);
     let cell_of = |p: &Point| {
-        let q = nalgebra::Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+        let q = to_point3(p).coords;
         (
             (q.dot(&u) / cell_mm).floor() as i64,
             (q.dot(&v) / cell_mm).floor() as i64,

@@ -10,7 +10,7 @@
 
 use nalgebra::{Isometry3, Point3, Vector3};
 
-use binpick_cloud::Point;
+use binpick_cloud::{Point, to_point3};
 
 use crate::params::RankingConfig;
 use crate::result::{Detection, FoundBy, ViewCheck};
@@ -38,7 +38,7 @@ pub(crate) fn suppress_duplicates(
     let c = Point3::from(binpick_cloud::centroid(kp).unwrap_or([0.0; 3]));
     let reach = kp
         .iter()
-        .map(|q| (Point3::new(f64::from(q[0]), f64::from(q[1]), f64::from(q[2])) - c).norm())
+        .map(|q| (to_point3(q) - c).norm())
         .fold(0.0, f64::max);
     let apart = |a: &Detection, b: &Detection| (a.pose * c - b.pose * c).norm() > 2.0 * reach + d;
     let mut kept: Vec<(Detection, Option<NearestIndex>)> = Vec::new();

@@ -6,7 +6,7 @@
 
 use nalgebra::{Isometry3, Point3, Vector3};
 
-use binpick_cloud::Point;
+use binpick_cloud::{Point, to_point3, transform_point};
 use binpick_match::{RangeGrid, Sensor, ViewConfig, ViewScore};
 use binpick_pcl::{IcpParams, IndexedCloud};
 
@@ -31,9 +31,6 @@ const OUTLIER_RESOLUTIONS: f64 = 4.0;
 const FAR_MM: f64 = 1e7;
 /// Model points checked against the support planes per pose.
 const SUPPORT_SAMPLE_POINTS: usize = 400;
-/// Directions the model's extreme points are found along (its deepest point behind a plane:
-/// 256 leave at most about 7 deg between a plane's normal and the nearest direction).
-const EXTREME_DIRECTIONS: usize = 256;
 /// Support planes within this angle are parallel (a layer of parts on the floor).
 const PARALLEL_DEG: f64 = 10.0;
 /// A model point is behind a support plane when it lies this many view tolerances beyond it
@@ -151,9 +148,6 @@ pub(crate) struct Verifier<'a> {
     planes: Vec<(Vector3<f64>, f64)>,
     /// A fixed sample of the model's surface checked against them (model frame).
     support_sample: Vec<Point3<f64>>,
-    /// The model's points farthest out along a spread of directions (model frame): its
-    /// deepest point behind any plane is one of them, or within a sample spacing of one.
-    extremes: Vec<Point3<f64>>,
     /// The planes a part's deepest point is checked against: those that can carry a part
     /// (`sink_planes`).
     sink_planes: Vec<(Vector3<f64>, f64)>,
@@ -222,7 +216,7 @@ impl<'a> Verifier<'a> {
         let grid = grid?;
         let on_plane = scale.support_distance_mm;
         let support_explained = grid.background_cells(|p| {
-            let q = Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+            let q = to_point3(p).coords;
             scene
                 .bounding
                 .iter()
@@ -235,7 +229,6 @@ impl<'a> Verifier<'a> {
                 &model.dense.points,
                 SUPPORT_SAMPLE_POINTS,
             ),
-            extremes: extreme_points(&model.dense.points, EXTREME_DIRECTIONS),
             sink_planes: sink_planes(&scene.bounding, scale.model_diameter_mm, &towards_sensor),
             grid,
             view,
@@ -372,11 +365,7 @@ impl<'a> Verifier<'a> {
         let rims: Vec<Point> = self
             .visible_rims(pose)
             .into_iter()
-            .map(|i| {
-                let p = self.model.dense.points[i as usize];
-                let q = pose * Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
-                [q.x as f32, q.y as f32, q.z as f32]
-            })
+            .map(|i| transform_point(pose, &self.model.dense.points[i as usize]))
             .collect();
         if rims.is_empty() {
             return false;
@@ -484,6 +473,7 @@ impl<'a> Verifier<'a> {
                 })
                 .count() as u32;
             s.sunk_mm = self
+                .model
                 .extremes
                 .iter()
                 .map(|p| {
@@ -535,44 +525,6 @@ pub(crate) fn edge_on_cells(scale: &DerivedScale) -> f64 {
     EDGE_ON_VIEW_SHARE * typical_cells(scale)
 }
 
-/// The model's points farthest out along `directions` directions spread over the sphere
-/// (Fibonacci lattice), without repeats, in first-found order.
-fn extreme_points(points: &[Point], directions: usize) -> Vec<Point3<f64>> {
-    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
-    let mut picked: Vec<usize> = Vec::new();
-    for k in 0..directions {
-        let z = 1.0 - 2.0 * (k as f64 + 0.5) / directions as f64;
-        let r = (1.0 - z * z).sqrt();
-        let u = Vector3::new(
-            r * (golden * k as f64).cos(),
-            r * (golden * k as f64).sin(),
-            z,
-        );
-        let far = points.iter().enumerate().max_by(|a, b| {
-            let along = |p: &Point| {
-                u.dot(&Vector3::new(
-                    f64::from(p[0]),
-                    f64::from(p[1]),
-                    f64::from(p[2]),
-                ))
-            };
-            along(a.1).total_cmp(&along(b.1))
-        });
-        if let Some((i, _)) = far
-            && !picked.contains(&i)
-        {
-            picked.push(i);
-        }
-    }
-    picked
-        .into_iter()
-        .map(|i| {
-            let p = points[i];
-            Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]))
-        })
-        .collect()
-}
-
 /// The bounding planes (normals towards the parts) that can carry a part: not one facing
 /// away from the sensor (`towards_sensor`), a bin's rim, which parts heaped high stick out
 /// past; nor one in front of a parallel plane by less than `diameter_mm`, RANSAC laid across
@@ -607,30 +559,32 @@ pub(crate) fn sunk_depth_mm(scale: &DerivedScale) -> f64 {
 }
 
 /// For each support plane (`a x + b y + c z + d = 0`), whether it bounds the parts, with its
-/// normal turned towards them: it does when (almost) all the scene's non-support points
-/// `world` lie on one side of it, beyond `depth` mm (`MAX_BEHIND_RATIO`), or when those
-/// behind it are as few as a sensor's outliers behind the plane's own points (the support
-/// points `support` within `on_plane_mm`; `MAX_OUTLIER_RATIO`: a few thin rods on a large
-/// floor). A plane with parts on both sides
+/// normal turned towards them: it does when (almost) all the scene's non-support points (of
+/// `points`, where `support` is false) lie on one side of it, beyond `depth` mm
+/// (`MAX_BEHIND_RATIO`), or when those behind it are as few as a sensor's outliers behind the
+/// plane's own points (the support points within `on_plane_mm`; `MAX_OUTLIER_RATIO`: a few
+/// thin rods on a large floor). A plane with parts on both sides
 /// (RANSAC laid across the tops of a layer of parts, say) bounds nothing.
 pub(crate) fn bounding_planes(
     planes: &[[f64; 4]],
-    world: &[Point],
-    support: &[Point],
+    points: &[Point],
+    support: &[bool],
     depth: f64,
     on_plane_mm: f64,
 ) -> Vec<Option<(Vector3<f64>, f64)>> {
+    let side_of = |on_support: bool| {
+        points
+            .iter()
+            .zip(support)
+            .filter_map(move |(p, &s)| (s == on_support).then_some(p))
+    };
     planes
         .iter()
         .map(|&[a, b, c, d]| {
             let n = Vector3::new(a, b, c);
             let (mut front, mut behind) = (0usize, 0usize);
-            for p in world {
-                let side = n.dot(&Vector3::new(
-                    f64::from(p[0]),
-                    f64::from(p[1]),
-                    f64::from(p[2]),
-                )) + d;
+            for p in side_of(false) {
+                let side = n.dot(&to_point3(p).coords) + d;
                 front += usize::from(side > depth);
                 behind += usize::from(side < -depth);
             }
@@ -641,12 +595,8 @@ pub(crate) fn bounding_planes(
             };
             // The plane's own points are counted only when the share alone does not do.
             let few = minor as f64 <= MAX_BEHIND_RATIO * major as f64 || {
-                let on_plane = support
-                    .iter()
-                    .filter(|p| {
-                        let q = Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
-                        (n.dot(&q) + d).abs() <= on_plane_mm
-                    })
+                let on_plane = side_of(true)
+                    .filter(|p| (n.dot(&to_point3(p).coords) + d).abs() <= on_plane_mm)
                     .count();
                 minor as f64 <= MAX_OUTLIER_RATIO * on_plane as f64
             };
@@ -711,48 +661,24 @@ mod tests {
         let mut world = grid(1000, 5.0);
         world.extend((0..60).map(|i| [i as f32, 0.0, -10.0 - (i % 16) as f32]));
         let planes = [[0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 1.0, -8.0]];
-        let bounding = bounding_planes(&planes[..1], &world, &floor, 3.0, 1.0);
-        assert_eq!(bounding, vec![Some((Vector3::z(), 0.0))]);
-        // Without the floor's own points, 6 % behind it is too many.
+        // The scene: `world` (not support) and then `on_support`.
+        let bounding = |planes: &[[f64; 4]], world: &[Point], on_support: &[Point]| {
+            let mask: Vec<bool> = (0..world.len() + on_support.len())
+                .map(|i| i >= world.len())
+                .collect();
+            bounding_planes(planes, &[world, on_support].concat(), &mask, 3.0, 1.0)
+        };
         assert_eq!(
-            bounding_planes(&planes[..1], &world, &[], 3.0, 1.0),
-            vec![None]
+            bounding(&planes[..1], &world, &floor),
+            vec![Some((Vector3::z(), 0.0))]
         );
+        // Without the floor's own points, 6 % behind it is too many.
+        assert_eq!(bounding(&planes[..1], &world, &[]), vec![None]);
         // A plane across the tops of a layer (800 of its own points, 8 mm up) with rods
         // stacked 4 mm above it and 100 rod points 4 mm below bounds nothing.
         world.extend(grid(300, 12.0));
         world.extend(grid(100, 4.0));
         let on = [floor, grid(800, 8.0)].concat();
-        assert_eq!(
-            bounding_planes(&planes[1..], &world, &on, 3.0, 1.0),
-            vec![None]
-        );
-    }
-
-    #[test]
-    fn the_extreme_points_hold_the_deepest_point_along_any_axis() {
-        // A 40 x 20 x 4 mm box sampled on a 1 mm grid over its volume.
-        let mut points: Vec<Point> = Vec::new();
-        for i in 0..=40 {
-            for j in 0..=20 {
-                for k in 0..=4 {
-                    points.push([i as f32 - 20.0, j as f32 - 10.0, k as f32 - 2.0]);
-                }
-            }
-        }
-        let extremes = extreme_points(&points, EXTREME_DIRECTIONS);
-        assert!(extremes.len() < 100, "{}", extremes.len());
-        for axis in [Vector3::x(), Vector3::y(), Vector3::z(), -Vector3::z()] {
-            let lowest = |ps: &mut dyn Iterator<Item = f64>| ps.fold(f64::MAX, f64::min);
-            let all = lowest(&mut points.iter().map(|p| {
-                axis.dot(&Vector3::new(
-                    f64::from(p[0]),
-                    f64::from(p[1]),
-                    f64::from(p[2]),
-                ))
-            }));
-            let ext = lowest(&mut extremes.iter().map(|p| axis.dot(&p.coords)));
-            assert_eq!(all, ext, "along {axis:?}");
-        }
+        assert_eq!(bounding(&planes[1..], &world, &on), vec![None]);
     }
 }
