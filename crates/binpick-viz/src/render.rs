@@ -1174,7 +1174,12 @@ fn draw_legend(
             [120, 120, 120],
         );
     };
-    if opts.color_by == ColorBy::FinalScore {
+    // A captioned colour bar with its two ends labelled; the y below its labels.
+    let scale_bar = |img: &mut RgbImage,
+                     mut y: f64,
+                     caption: &str,
+                     colour: &dyn Fn(f64) -> Rgb,
+                     (lo, hi): (String, String)| {
         draw::text(
             img,
             reg,
@@ -1182,74 +1187,50 @@ fn draw_legend(
             x0,
             y,
             Anchor::TopLeft,
-            "final score colour",
+            caption,
             grey,
             None,
         );
         y += f * 1.15;
-        gradient(img, y, &|t| {
-            score_color(score_lo + t * (score_hi - score_lo), score_lo, score_hi)
-        });
+        gradient(img, y, colour);
         y += f * 1.0;
+        draw::text(img, reg, fs * 0.8, x0, y, Anchor::TopLeft, &lo, grey, None);
+        let right = x0 + bar_w;
         draw::text(
             img,
             reg,
             fs * 0.8,
-            x0,
+            right,
             y,
-            Anchor::TopLeft,
-            &format!("{} %", fmt_num(score_lo)),
+            Anchor::TopRight,
+            &hi,
             grey,
             None,
         );
-        draw::text(
+        y
+    };
+    if opts.color_by == ColorBy::FinalScore {
+        y = scale_bar(
             img,
-            reg,
-            fs * 0.8,
-            x0 + bar_w,
             y,
-            Anchor::TopRight,
-            &format!("{} %", fmt_num(score_hi)),
-            grey,
-            None,
+            "final score colour",
+            &|t| score_color(score_lo + t * (score_hi - score_lo), score_lo, score_hi),
+            (
+                format!("{} %", fmt_num(score_lo)),
+                format!("{} %", fmt_num(score_hi)),
+            ),
         );
         y += f * 1.3;
     }
-    draw::text(
+    scale_bar(
         img,
-        reg,
-        fs * 0.85,
-        x0,
         y,
-        Anchor::TopLeft,
         "scene height along up",
-        grey,
-        None,
-    );
-    y += f * 1.15;
-    gradient(img, y, &height_color);
-    y += f * 1.0;
-    draw::text(
-        img,
-        reg,
-        fs * 0.8,
-        x0,
-        y,
-        Anchor::TopLeft,
-        &format!("{} mm", fmt_num(h_lo)),
-        grey,
-        None,
-    );
-    draw::text(
-        img,
-        reg,
-        fs * 0.8,
-        x0 + bar_w,
-        y,
-        Anchor::TopRight,
-        &format!("{} mm", fmt_num(h_hi)),
-        grey,
-        None,
+        &height_color,
+        (
+            format!("{} mm", fmt_num(h_lo)),
+            format!("{} mm", fmt_num(h_hi)),
+        ),
     );
     shown
 }
