@@ -24,8 +24,8 @@ use binpick_cloud::dataset::{GroundTruth, RevolutionAxis, write_json};
 
 use crate::depth::DepthCameraConfig;
 use crate::generate::{
-    build_pile_in, io_err, is_empty_or_synth_dir, prepare_out_dir, write_cloud_seen_from,
-    write_model_cloud, write_stl,
+    SceneFiles, build_pile_in, io_err, is_empty_or_synth_dir, prepare_out_dir,
+    write_cloud_seen_from, write_ground_truth, write_model_cloud, write_stl,
 };
 use crate::models::{Model, ModelLibrary, PICKABLE_FRACTION, ground_truth_alone};
 use crate::parts::PartKind;
@@ -617,21 +617,11 @@ fn run_scene(
         &scene.scan.cloud,
         &viewpoint,
     )?;
-    let mut gt_ids = Vec::new();
-    let mut pickable = BTreeMap::new();
-    for g in &scene.gt {
-        let gt_id = format!("{id}__{}", g.model);
-        write_json(&root.join("gt").join(format!("{gt_id}.json")), g)?;
-        pickable.insert(
-            g.model.clone(),
-            g.instances.iter().filter(|i| i.pickable).count(),
-        );
-        gt_ids.push(gt_id);
-    }
-    let mut parts = BTreeMap::new();
-    for inst in &scene.instances {
-        *parts.entry(inst.kind.name().to_owned()).or_insert(0) += 1;
-    }
+    let SceneFiles {
+        gt_ids,
+        pickable,
+        parts,
+    } = write_ground_truth(root, id, &scene.gt, &scene.instances)?;
     let up = lib.parts.get(set.target).canonical_up;
     let target_upside_down = scene
         .instances

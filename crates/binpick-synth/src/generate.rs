@@ -376,21 +376,11 @@ fn write_scene(
         &root.join("scenes").join(format!("{scene_id}.pcd")),
         &scene.scan.cloud,
     )?;
-    let mut gt_ids = Vec::new();
-    let mut pickable = BTreeMap::new();
-    for gt in &scene.gt {
-        let gt_id = format!("{scene_id}__{}", gt.model);
-        write_json(&root.join("gt").join(format!("{gt_id}.json")), gt)?;
-        pickable.insert(
-            gt.model.clone(),
-            gt.instances.iter().filter(|i| i.pickable).count(),
-        );
-        gt_ids.push(gt_id);
-    }
-    let mut parts = BTreeMap::new();
-    for inst in &scene.instances {
-        *parts.entry(inst.kind.name().to_owned()).or_insert(0) += 1;
-    }
+    let SceneFiles {
+        gt_ids,
+        pickable,
+        parts,
+    } = write_ground_truth(root, scene_id, &scene.gt, &scene.instances)?;
     let c = &scene.scanner;
     Ok(SceneRecord {
         id: scene_id.to_owned(),
@@ -409,6 +399,46 @@ fn write_scene(
         settled: scene.settled,
         gt: gt_ids,
         pickable,
+    })
+}
+
+/// What a scene's manifest record says about its ground truth.
+pub(crate) struct SceneFiles {
+    /// `<scene>__<model>`, one per ground-truth file written.
+    pub gt_ids: Vec<String>,
+    /// Pickable instances per model.
+    pub pickable: BTreeMap<String, usize>,
+    /// Instances per part kind in the scene.
+    pub parts: BTreeMap<String, usize>,
+}
+
+/// Writes `gt/<scene_id>__<model>.json` for each of `gt` and counts what the manifest
+/// records about them and about the scene's `instances`.
+pub(crate) fn write_ground_truth(
+    root: &Path,
+    scene_id: &str,
+    gt: &[GroundTruth],
+    instances: &[Instance],
+) -> Result<SceneFiles, SynthError> {
+    let mut gt_ids = Vec::new();
+    let mut pickable = BTreeMap::new();
+    for g in gt {
+        let gt_id = format!("{scene_id}__{}", g.model);
+        write_json(&root.join("gt").join(format!("{gt_id}.json")), g)?;
+        pickable.insert(
+            g.model.clone(),
+            g.instances.iter().filter(|i| i.pickable).count(),
+        );
+        gt_ids.push(gt_id);
+    }
+    let mut parts = BTreeMap::new();
+    for inst in instances {
+        *parts.entry(inst.kind.name().to_owned()).or_insert(0) += 1;
+    }
+    Ok(SceneFiles {
+        gt_ids,
+        pickable,
+        parts,
     })
 }
 
