@@ -358,25 +358,24 @@ fn render(
     let fonts = Fonts::load()?;
 
     // --- points -----------------------------------------------------------------------
-    let scene_pts: Vec<Vector3<f64>> = scene
-        .points
-        .iter()
-        .filter(|p| finite3(p))
-        .map(|p| to_point3(p).coords)
-        .collect();
-    let scene_non_finite = scene.points.len() - scene_pts.len();
+    // A cloud's finite points, and how many were not.
+    let finite = |cloud: &PointCloud| -> (Vec<Vector3<f64>>, usize) {
+        let pts: Vec<Vector3<f64>> = cloud
+            .points
+            .iter()
+            .filter(|p| finite3(p))
+            .map(|p| to_point3(p).coords)
+            .collect();
+        let skipped = cloud.points.len() - pts.len();
+        (pts, skipped)
+    };
+    let (scene_pts, scene_non_finite) = finite(scene);
     if scene_pts.is_empty() {
         return Err(VizError::EmptyScene {
             non_finite: scene_non_finite,
         });
     }
-    let model_pts: Vec<Vector3<f64>> = model
-        .points
-        .iter()
-        .filter(|p| finite3(p))
-        .map(|p| to_point3(p).coords)
-        .collect();
-    let model_non_finite = model.points.len() - model_pts.len();
+    let (model_pts, model_non_finite) = finite(model);
     if !placed.is_empty() && model_pts.is_empty() {
         return Err(VizError::EmptyModel {
             non_finite: model_non_finite,
