@@ -6,7 +6,7 @@ use std::path::Path;
 use anyhow::{Context, Result};
 use binpick::{Detection, PointCloud};
 use binpick_eval::{EvalRun, ThesisTable, thesis_reference};
-use binpick_viz::{BarChart, Percents, Placed, PlotOptions, RenderOptions, TableRow};
+use binpick_viz::{BarChart, Percents, Placed, PlotOptions, RenderOptions, Seen, TableRow};
 use serde::{Deserialize, Serialize};
 
 /// Detections as the renderer wants them.
@@ -19,6 +19,10 @@ pub fn placed(detections: &[Detection]) -> Result<Vec<Placed>> {
                 pose: d.pose,
                 final_score: d.final_score,
                 initial_score: d.initial_score,
+                seen: d.view.as_ref().map(|v| Seen {
+                    visibility: v.visibility,
+                    fit: v.fit,
+                }),
             })
         })
         .collect()

@@ -132,24 +132,28 @@ fn main() -> Result<(), Box<dyn Error>> {
             pose: truth[0],
             final_score: 1.8,
             initial_score: 412.0,
+            seen: None,
         },
         Placed {
             rank: 2,
             pose: truth[3],
             final_score: 3.5,
             initial_score: 388.5,
+            seen: None,
         },
         Placed {
             rank: 3,
             pose: nudge * truth[2],
             final_score: 14.2,
             initial_score: 251.0,
+            seen: None,
         },
         Placed {
             rank: 4,
             pose: truth[1],
             final_score: 6.9,
             initial_score: 301.2,
+            seen: None,
         },
     ];
     let opts = RenderOptions {
@@ -242,6 +246,7 @@ fn main() -> Result<(), Box<dyn Error>> {
             pose: *p,
             final_score: 1.0 + i as f64 * 1.3,
             initial_score: 420.0 - i as f64 * 17.0,
+            seen: None,
         })
         .collect();
     let opts_pile = RenderOptions {

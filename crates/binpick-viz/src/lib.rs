@@ -45,6 +45,19 @@ pub struct Placed {
     pub final_score: f64,
     /// Initial (coarse alignment) score.
     pub initial_score: f64,
+    /// What the scene-voting engine's view check says of it; `None` for the thesis's
+    /// engines. When every detection has it, the legend shows it in place of the scores.
+    pub seen: Option<Seen>,
+}
+
+/// A detection's view check (scene-voting engine), as the legend shows it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Seen {
+    /// Share of the surface the sensor would see of the part alone that the scan confirms,
+    /// 0-1 (higher = better).
+    pub visibility: f64,
+    /// Mean fit weight of the confirmed surface, 0-1 (1 = the scan lies on the model).
+    pub fit: f64,
 }
 
 /// What the detections' colours encode.

@@ -277,14 +277,16 @@ fn layout(w: u32, h: u32, fonts: &Fonts, placed: &[Placed]) -> Layout {
     let title_h = draw::line_height(&fonts.bold, fs * 1.25).ceil() as i64 + 2 * margin;
     // Legend width: the widest row at the legend's font size.
     let mut widest = draw::text_width(&fonts.bold, fs, "Detections (colour = score)");
-    for line in LEGEND_NOTES {
+    let columns = Columns::of(placed);
+    for line in columns.notes() {
         widest = widest.max(draw::text_width(&fonts.regular, fs * 0.85, line));
     }
     let row_w = |p: &Placed| {
+        let [a, b] = columns.values(p);
         fs * 2.2
             + draw::text_width(&fonts.bold, fs, &format!("#{}", p.rank)).max(fs * 2.2)
-            + draw::text_width(&fonts.regular, fs, &fmt_num(p.final_score)).max(fs * 3.5)
-            + draw::text_width(&fonts.regular, fs, &fmt_num(p.initial_score)).max(fs * 3.5)
+            + draw::text_width(&fonts.regular, fs, &a).max(fs * 3.5)
+            + draw::text_width(&fonts.regular, fs, &b).max(fs * 3.5)
             + fs * 2.0
     };
     for p in placed.iter().take(200) {
@@ -323,6 +325,46 @@ const LEGEND_NOTES: [&str; 3] = [
     "outliers after ICP (lower = better)",
     "initial = coarse alignment score",
 ];
+
+/// The legend's notes when it shows the view check ([`crate::Seen`]).
+const SEEN_NOTES: [&str; 3] = [
+    "vis = % of its visible surface",
+    "the scan confirms (higher = better)",
+    "fit = 1 when the scan lies on it",
+];
+
+/// The legend's two figures per detection: the view check when every detection has one
+/// (scene voting), else the thesis's final and initial scores. Headers, notes, values.
+struct Columns {
+    seen: bool,
+}
+
+impl Columns {
+    fn of(placed: &[Placed]) -> Self {
+        Self {
+            seen: !placed.is_empty() && placed.iter().all(|p| p.seen.is_some()),
+        }
+    }
+
+    fn headers(&self) -> [&'static str; 2] {
+        if self.seen {
+            ["vis %", "fit"]
+        } else {
+            ["final %", "initial"]
+        }
+    }
+
+    fn notes(&self) -> [&'static str; 3] {
+        if self.seen { SEEN_NOTES } else { LEGEND_NOTES }
+    }
+
+    fn values(&self, p: &Placed) -> [String; 2] {
+        match p.seen.filter(|_| self.seen) {
+            Some(v) => [fmt_num(100.0 * v.visibility), format!("{:.2}", v.fit)],
+            None => [fmt_num(p.final_score), fmt_num(p.initial_score)],
+        }
+    }
+}
 
 fn render(
     scene: &PointCloud,
@@ -983,7 +1025,8 @@ fn draw_legend(
     };
     draw::text(img, bold, fs, x0, y, Anchor::TopLeft, heading, BLACK, None);
     y += f * 1.6;
-    // Columns: swatch, rank, final, initial (numbers right-aligned).
+    // Columns: swatch, rank, two figures (`Columns`; numbers right-aligned).
+    let columns = Columns::of(placed);
     let right = x0 + f64::from(r.width);
     let c_rank = x0 + f * 1.8;
     let c_init = right - f * 0.3;
@@ -1007,7 +1050,7 @@ fn draw_legend(
         c_final,
         y,
         Anchor::TopRight,
-        "final %",
+        columns.headers()[0],
         grey,
         None,
     );
@@ -1018,7 +1061,7 @@ fn draw_legend(
         c_init,
         y,
         Anchor::TopRight,
-        "initial",
+        columns.headers()[1],
         grey,
         None,
     );
@@ -1026,7 +1069,7 @@ fn draw_legend(
     draw::fill_rect(img, x0 as i64, y as i64, r.width as i64, 1, [180, 180, 180]);
     y += f * 0.3;
     let row_h = f * 1.45;
-    let footer_h = f * (LEGEND_NOTES.len() as f64 * 1.1 + 5.5)
+    let footer_h = f * (columns.notes().len() as f64 * 1.1 + 5.5)
         + if opts.color_by == ColorBy::FinalScore {
             f * 3.0
         } else {
@@ -1098,28 +1141,9 @@ fn draw_legend(
                     None,
                 );
             } else {
-                draw::text(
-                    img,
-                    reg,
-                    fs,
-                    c_final,
-                    y,
-                    Anchor::TopRight,
-                    &fmt_num(p.final_score),
-                    tc,
-                    None,
-                );
-                draw::text(
-                    img,
-                    reg,
-                    fs,
-                    c_init,
-                    y,
-                    Anchor::TopRight,
-                    &fmt_num(p.initial_score),
-                    tc,
-                    None,
-                );
+                let [a, b] = columns.values(p);
+                draw::text(img, reg, fs, c_final, y, Anchor::TopRight, &a, tc, None);
+                draw::text(img, reg, fs, c_init, y, Anchor::TopRight, &b, tc, None);
             }
             y += row_h;
             shown += 1;
@@ -1141,7 +1165,11 @@ fn draw_legend(
         }
     }
     y += f * 0.5;
-    for line in LEGEND_NOTES.into_iter().filter(|l| fits(reg, fs * 0.85, l)) {
+    for line in columns
+        .notes()
+        .into_iter()
+        .filter(|l| fits(reg, fs * 0.85, l))
+    {
         draw::text(
             img,
             reg,
@@ -1232,4 +1260,40 @@ fn draw_legend(
         ),
     );
     shown
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn placed(rank: usize, seen: Option<crate::Seen>) -> Placed {
+        Placed {
+            rank,
+            pose: nalgebra::Isometry3::identity(),
+            final_score: 2.5,
+            initial_score: 300.0,
+            seen,
+        }
+    }
+
+    #[test]
+    fn the_legend_shows_the_view_check_only_when_every_detection_has_one() {
+        let seen = Some(crate::Seen {
+            visibility: 0.955,
+            fit: 0.876,
+        });
+        let all = [placed(1, seen), placed(2, seen)];
+        let c = Columns::of(&all);
+        assert_eq!(c.headers(), ["vis %", "fit"]);
+        assert_eq!(c.notes(), SEEN_NOTES);
+        assert_eq!(c.values(&all[0]), ["95.5".to_owned(), "0.88".to_owned()]);
+
+        // One detection without it (a thesis engine's): the thesis's scores for all.
+        let mixed = [placed(1, seen), placed(2, None)];
+        let c = Columns::of(&mixed);
+        assert_eq!(c.headers(), ["final %", "initial"]);
+        assert_eq!(c.notes(), LEGEND_NOTES);
+        assert_eq!(c.values(&mixed[0]), ["2.50".to_owned(), "300.0".to_owned()]);
+        assert_eq!(Columns::of(&[]).headers(), ["final %", "initial"]);
+    }
 }

@@ -13,6 +13,7 @@ fn placed(rank: usize, pose: nalgebra::Isometry3<f64>) -> Placed {
         pose,
         final_score: 1.0,
         initial_score: 100.0,
+        seen: None,
     }
 }
 

@@ -20,6 +20,7 @@ fn placed(rank: usize, pose: nalgebra::Isometry3<f64>) -> Placed {
         pose,
         final_score: 2.5,
         initial_score: 300.0,
+        seen: None,
     }
 }
 
