@@ -46,7 +46,8 @@ pub struct Placed {
     /// Initial (coarse alignment) score.
     pub initial_score: f64,
     /// What the scene-voting engine's view check says of it; `None` for the thesis's
-    /// engines. When every detection has it, the legend shows it in place of the scores.
+    /// engines. When every detection has it and colours follow the rank, the legend shows
+    /// it in place of the scores.
     pub seen: Option<Seen>,
 }
 

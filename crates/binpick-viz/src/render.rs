@@ -269,7 +269,7 @@ struct Layout {
     caption_h: i64,
 }
 
-fn layout(w: u32, h: u32, fonts: &Fonts, placed: &[Placed]) -> Layout {
+fn layout(w: u32, h: u32, fonts: &Fonts, placed: &[Placed], color_by: ColorBy) -> Layout {
     let fs = (f64::from(h) / 50.0)
         .min(f64::from(w) / 90.0)
         .clamp(8.0, 40.0) as f32;
@@ -277,7 +277,7 @@ fn layout(w: u32, h: u32, fonts: &Fonts, placed: &[Placed]) -> Layout {
     let title_h = draw::line_height(&fonts.bold, fs * 1.25).ceil() as i64 + 2 * margin;
     // Legend width: the widest row at the legend's font size.
     let mut widest = draw::text_width(&fonts.bold, fs, "Detections (colour = score)");
-    let columns = Columns::of(placed);
+    let columns = Columns::of(placed, color_by);
     for line in columns.notes() {
         widest = widest.max(draw::text_width(&fonts.regular, fs * 0.85, line));
     }
@@ -334,15 +334,18 @@ const SEEN_NOTES: [&str; 3] = [
 ];
 
 /// The legend's two figures per detection: the view check when every detection has one
-/// (scene voting), else the thesis's final and initial scores. Headers, notes, values.
+/// (scene voting) and colours follow the rank, else the thesis's final and initial scores
+/// (colours by final score keep the score they show). Headers, notes, values.
 struct Columns {
     seen: bool,
 }
 
 impl Columns {
-    fn of(placed: &[Placed]) -> Self {
+    fn of(placed: &[Placed], color_by: ColorBy) -> Self {
         Self {
-            seen: !placed.is_empty() && placed.iter().all(|p| p.seen.is_some()),
+            seen: color_by == ColorBy::Rank
+                && !placed.is_empty()
+                && placed.iter().all(|p| p.seen.is_some()),
         }
     }
 
@@ -477,7 +480,7 @@ fn render(
     let oblique = camera(horiz * elr.cos() + up * elr.sin(), up, e2);
 
     // --- image ------------------------------------------------------------------------
-    let lay = layout(opts.width, opts.height, &fonts, placed);
+    let lay = layout(opts.width, opts.height, &fonts, placed, opts.color_by);
     let mut img = RgbImage::from_pixel(opts.width, opts.height, image::Rgb(WHITE));
     let captions = [
         if opts.view_dir.is_some() {
@@ -1026,7 +1029,7 @@ fn draw_legend(
     draw::text(img, bold, fs, x0, y, Anchor::TopLeft, heading, BLACK, None);
     y += f * 1.6;
     // Columns: swatch, rank, two figures (`Columns`; numbers right-aligned).
-    let columns = Columns::of(placed);
+    let columns = Columns::of(placed, opts.color_by);
     let right = x0 + f64::from(r.width);
     let c_rank = x0 + f * 1.8;
     let c_init = right - f * 0.3;
@@ -1283,17 +1286,25 @@ mod tests {
             fit: 0.876,
         });
         let all = [placed(1, seen), placed(2, seen)];
-        let c = Columns::of(&all);
+        let c = Columns::of(&all, ColorBy::Rank);
         assert_eq!(c.headers(), ["vis %", "fit"]);
         assert_eq!(c.notes(), SEEN_NOTES);
         assert_eq!(c.values(&all[0]), ["95.5".to_owned(), "0.88".to_owned()]);
 
         // One detection without it (a thesis engine's): the thesis's scores for all.
         let mixed = [placed(1, seen), placed(2, None)];
-        let c = Columns::of(&mixed);
+        let c = Columns::of(&mixed, ColorBy::Rank);
         assert_eq!(c.headers(), ["final %", "initial"]);
         assert_eq!(c.notes(), LEGEND_NOTES);
         assert_eq!(c.values(&mixed[0]), ["2.50".to_owned(), "300.0".to_owned()]);
-        assert_eq!(Columns::of(&[]).headers(), ["final %", "initial"]);
+        assert_eq!(
+            Columns::of(&[], ColorBy::Rank).headers(),
+            ["final %", "initial"]
+        );
+        // Coloured by final score: the legend shows the score the colours follow.
+        assert_eq!(
+            Columns::of(&all, ColorBy::FinalScore).headers(),
+            ["final %", "initial"]
+        );
     }
 }
