@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use binpick_cloud::dataset::Dataset;
 use binpick_eval::{EvalRun, dataset_models, evaluate_dataset};
-use binpick_eval::{ThesisTable, median_p95, thesis_reference};
+use binpick_eval::{SceneScore, ThesisTable, median_p95, thesis_reference};
 use serde::Serialize;
 
 use crate::config::{ParamArgs, write_json, write_params};
@@ -254,8 +254,11 @@ struct SuiteRow {
     wrong_first_pick_pct: f64,
     /// Wrong detections per scan.
     false_positives_per_scan: f64,
-    /// Scans with pickable parts and no correct detection, %.
+    /// Scans with pickable parts and no pick (nothing detected, or nothing free to pick), %.
     starvation_pct: f64,
+    /// Scans with detections but none free to pick (no pick), pickable parts present or
+    /// not, %.
+    none_free_to_pick_pct: f64,
     time_ms_median: f64,
     time_ms_p95: f64,
     failed_scenes: usize,
@@ -266,11 +269,10 @@ impl SuiteRow {
         let p = run.table.percents();
         let (median, p95) = median_p95(&run.times_ms);
         let fp: usize = run.scenes.iter().map(|s| s.score.false_positives).sum();
-        let wrong_first = run
-            .scenes
-            .iter()
-            .filter(|s| s.score.wrong_first_pick)
-            .count();
+        let share = |f: fn(&SceneScore) -> bool| {
+            let n = run.scenes.iter().filter(|s| f(&s.score)).count();
+            100.0 * n as f64 / run.table.files.max(1) as f64
+        };
         Self {
             set: set.dir.clone(),
             model: run.model.clone(),
@@ -278,9 +280,10 @@ impl SuiteRow {
             pickable: run.table.pickable,
             recall_pct: p.recognition,
             false_best_pct: p.false_best,
-            wrong_first_pick_pct: 100.0 * wrong_first as f64 / run.table.files.max(1) as f64,
+            wrong_first_pick_pct: share(|s| s.wrong_first_pick),
             false_positives_per_scan: fp as f64 / run.table.files.max(1) as f64,
             starvation_pct: p.starvation,
+            none_free_to_pick_pct: share(|s| s.none_free_to_pick),
             time_ms_median: median,
             time_ms_p95: p95,
             failed_scenes: run.failed,
@@ -345,11 +348,11 @@ fn run_suite(a: &Args, sets: &[SuiteSet]) -> Result<()> {
     }
     print_suite(&rows, preset, a.model_file);
     let mut csv = String::from(
-        "set,model,scans,pickable,recall_pct,false_best_pct,false_positives_per_scan,starvation_pct,time_ms_median,time_ms_p95,failed_scenes,wrong_first_pick_pct\n",
+        "set,model,scans,pickable,recall_pct,false_best_pct,false_positives_per_scan,starvation_pct,time_ms_median,time_ms_p95,failed_scenes,wrong_first_pick_pct,none_free_to_pick_pct\n",
     );
     for r in &rows {
         csv.push_str(&format!(
-            "{},{},{},{},{:.1},{:.1},{:.2},{:.1},{:.0},{:.0},{},{:.1}\n",
+            "{},{},{},{},{:.1},{:.1},{:.2},{:.1},{:.0},{:.0},{},{:.1},{:.1}\n",
             r.set,
             r.model,
             r.scans,
@@ -361,7 +364,8 @@ fn run_suite(a: &Args, sets: &[SuiteSet]) -> Result<()> {
             r.time_ms_median,
             r.time_ms_p95,
             r.failed_scenes,
-            r.wrong_first_pick_pct
+            r.wrong_first_pick_pct,
+            r.none_free_to_pick_pct
         ));
     }
     crate::config::write_text(&out.join("suite.csv"), &csv)?;
@@ -385,7 +389,7 @@ fn print_suite(rows: &[SuiteRow], preset: &str, file: binpick_eval::ModelFile) {
     };
     println!("benchmark, preset {preset}, model file {file}");
     println!(
-        "{:<26} {:>5} {:>8} {:>8} {:>8} {:>8} {:>9} {:>8} {:>10} {:>10}",
+        "{:<26} {:>5} {:>8} {:>8} {:>8} {:>8} {:>9} {:>8} {:>8} {:>10} {:>10}",
         "set",
         "scans",
         "pickable",
@@ -394,12 +398,13 @@ fn print_suite(rows: &[SuiteRow], preset: &str, file: binpick_eval::ModelFile) {
         "WP/F %",
         "FP/scan",
         "S/F %",
+        "NF/F %",
         "median ms",
         "p95 ms"
     );
     for r in rows {
         println!(
-            "{:<26} {:>5} {:>8} {:>8.1} {:>8.0} {:>8.0} {:>9.2} {:>8.0} {:>10.0} {:>10.0}",
+            "{:<26} {:>5} {:>8} {:>8.1} {:>8.0} {:>8.0} {:>9.2} {:>8.0} {:>8.0} {:>10.0} {:>10.0}",
             r.set,
             r.scans,
             r.pickable,
@@ -408,6 +413,7 @@ fn print_suite(rows: &[SuiteRow], preset: &str, file: binpick_eval::ModelFile) {
             r.wrong_first_pick_pct,
             r.false_positives_per_scan,
             r.starvation_pct,
+            r.none_free_to_pick_pct,
             r.time_ms_median,
             r.time_ms_p95
         );
@@ -415,7 +421,7 @@ fn print_suite(rows: &[SuiteRow], preset: &str, file: binpick_eval::ModelFile) {
     let n = rows.len().max(1) as f64;
     let mean = |f: fn(&SuiteRow) -> f64| rows.iter().map(f).sum::<f64>() / n;
     println!(
-        "{:<26} {:>5} {:>8} {:>8.1} {:>8.0} {:>8.0} {:>9.2} {:>8.0}   (means over sets)",
+        "{:<26} {:>5} {:>8} {:>8.1} {:>8.0} {:>8.0} {:>9.2} {:>8.0} {:>8.0}   (means over sets)",
         "all sets",
         rows.iter().map(|r| r.scans).sum::<usize>(),
         rows.iter().map(|r| r.pickable).sum::<usize>(),
@@ -423,7 +429,8 @@ fn print_suite(rows: &[SuiteRow], preset: &str, file: binpick_eval::ModelFile) {
         mean(|r| r.false_best_pct),
         mean(|r| r.wrong_first_pick_pct),
         mean(|r| r.false_positives_per_scan),
-        mean(|r| r.starvation_pct)
+        mean(|r| r.starvation_pct),
+        mean(|r| r.none_free_to_pick_pct)
     );
 }
 
@@ -447,12 +454,12 @@ fn parse_obj_id(s: &str) -> Result<u32> {
 
 fn write_csv(path: &Path, run: &EvalRun) -> Result<()> {
     let mut s = String::from(
-        "id,scene,instances,pickable,recognised_pickable,recognised_unpickable,false_positives,false_best,starvation,time_ms,error\n",
+        "id,scene,instances,pickable,recognised_pickable,recognised_unpickable,false_positives,false_best,starvation,none_free_to_pick,time_ms,error\n",
     );
     for r in &run.scenes {
         let e = r.error.as_deref().unwrap_or("").replace(['"', '\n'], " ");
         s.push_str(&format!(
-            "{},{},{},{},{},{},{},{},{},{:.1},\"{e}\"\n",
+            "{},{},{},{},{},{},{},{},{},{},{:.1},\"{e}\"\n",
             r.id,
             r.scene,
             r.score.instances,
@@ -462,6 +469,7 @@ fn write_csv(path: &Path, run: &EvalRun) -> Result<()> {
             r.score.false_positives,
             u8::from(r.score.false_best),
             u8::from(r.score.starvation),
+            u8::from(r.score.none_free_to_pick),
             r.time_ms
         ));
     }

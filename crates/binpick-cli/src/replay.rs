@@ -425,8 +425,7 @@ impl Totals {
 fn pick(r: &ReplayResult) -> Option<nalgebra::Vector3<f64>> {
     r.report
         .as_ref()?
-        .detections
-        .first()
+        .first_pick()
         .map(|d| d.pose.translation.vector)
 }
 
@@ -445,7 +444,7 @@ fn print_table(
             writeln!(out, "{name:<36} ERROR {e}")?;
             continue;
         }
-        let first = r.report.as_ref().and_then(|rep| rep.detections.first());
+        let first = r.report.as_ref().and_then(|rep| rep.first_pick());
         let (pos, vis, fin) = match first {
             Some(d) => {
                 let t = d.pose.translation.vector;
@@ -585,7 +584,7 @@ fn replay_csv(rows: &[(&str, &String, &ReplayResult)]) -> String {
             r.detections.to_string(),
         ];
         if let Some(report) = &r.report {
-            match report.detections.first() {
+            match report.first_pick() {
                 Some(d) => {
                     let t = d.pose.translation.vector;
                     let [ro, pi, ya] = crate::table::rpy_deg(&d.pose);

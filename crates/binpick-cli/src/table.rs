@@ -5,7 +5,8 @@ use binpick::{FoundBy, Recognition};
 /// What the ranked table's columns mean (printed by `recognize --help` and in the README).
 pub const COLUMNS_HELP: &str = "\
 Ranked table (stdout; stderr with --json -), one row per detection, pick order:
-  rank       1 = pick first (detections[0] of the JSON)
+  rank       pick order (detections[0] of the JSON first); a part is picked only if it is
+             free to pick (free_to_pick in the JSON: nothing lies on it, a grasp is free)
   vis %      estimated visible fraction: share of the surface the sensor would see of the
              part alone in this pose that the scan confirms (scene-voting engine; - otherwise)
   final %    percent of outliers of the final pose (thesis 3.1.2): model points farther than
@@ -22,7 +23,8 @@ Ranked table (stdout; stderr with --json -), one row per detection, pick order:
   why        why it ranks there: with grasps declared in the model's sidecar, which grasp is
              free or what blocks each one (a detection's rank or N scene points); then free /
              covered share, visibility band, height along up
-Under the table: the first pick's free grasp (position mm and approach direction).";
+Under the table: `no pick` and why when parts were found but none is free to pick; with
+grasps declared, the first pick's free grasp (position mm and approach direction).";
 
 /// Roll, pitch, yaw (XYZ fixed axes), degrees.
 pub fn rpy_deg(p: &nalgebra::Isometry3<f64>) -> [f64; 3] {
@@ -84,21 +86,28 @@ pub fn print_ranked(out: &mut impl std::io::Write, r: &Recognition) -> std::io::
         )?;
     }
     writeln!(out, "poses in frame {}", r.frame.frame_id)?;
-    if let Some(first) = r.detections.first().filter(|d| !d.grasps.is_empty()) {
-        match first.grasps.iter().find(|g| g.free) {
-            Some(g) => writeln!(
-                out,
-                "first pick: {} at ({:.2}, {:.2}, {:.2}) mm, approach ({:.4}, {:.4}, {:.4})",
-                g.name,
-                g.position_mm[0],
-                g.position_mm[1],
-                g.position_mm[2],
-                g.approach[0],
-                g.approach[1],
-                g.approach[2]
-            )?,
-            None => writeln!(out, "no detection has a free grasp")?,
+    match r.first_pick() {
+        Some(first) => {
+            if let Some(g) = first.grasps.iter().find(|g| g.free) {
+                writeln!(
+                    out,
+                    "first pick: {} at ({:.2}, {:.2}, {:.2}) mm, approach ({:.4}, {:.4}, {:.4})",
+                    g.name,
+                    g.position_mm[0],
+                    g.position_mm[1],
+                    g.position_mm[2],
+                    g.approach[0],
+                    g.approach[1],
+                    g.approach[2]
+                )?;
+            }
         }
+        None if !r.detections.is_empty() => writeln!(
+            out,
+            "no pick: no part found is free to pick (each lies under another part or has \
+             every grasp blocked): rescan or clear the pile"
+        )?,
+        None => {}
     }
     Ok(())
 }

@@ -97,6 +97,13 @@ fn a_benchmark_root_gives_one_table_with_each_sets_own_figures() {
         let wrong_pct = row["wrong_first_pick_pct"].as_f64().unwrap();
         assert!((wrong_pct - 100.0 * wrong as f64 / scenes.len() as f64).abs() < 1e-9);
         assert!(wrong_pct >= row["false_best_pct"].as_f64().unwrap());
+        // Scans with detections but none free to pick: no pick, each counted as such.
+        let none_free = scenes
+            .iter()
+            .filter(|sc| sc["score"]["none_free_to_pick"] == true)
+            .count();
+        let none_free_pct = row["none_free_to_pick_pct"].as_f64().unwrap();
+        assert!((none_free_pct - 100.0 * none_free as f64 / scenes.len() as f64).abs() < 1e-9);
         assert!(out.join(set).join("summary.json").is_file());
     }
     // Each set names its part: --model makes no sense here and is refused, by name.

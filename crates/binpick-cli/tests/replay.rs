@@ -210,7 +210,7 @@ fn recognize_json_to_stdout_puts_the_table_on_stderr() {
     args.extend(FAST);
     let run = binpick(&args);
     let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
-    assert_eq!(v["schema_version"], 2);
+    assert_eq!(v["schema_version"], 3);
     assert_eq!(v["detections"].as_array().unwrap().len(), 1);
     let stderr = String::from_utf8(run.stderr).unwrap();
     assert!(

@@ -493,6 +493,7 @@ mod tests {
             },
             height_mm: 0.0,
             rank_reason: String::new(),
+            free_to_pick: true,
             grasps: Vec::new(),
         };
         let ids = BopIds {

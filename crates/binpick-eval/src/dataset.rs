@@ -373,6 +373,7 @@ fn evaluate_scene(
         scoring.diameter_mm,
         truth,
         &detections,
+        recognition.first_pick().map(|d| d.rank),
         DEFAULT_MATCH_FRACTION,
     );
     let params = recognizer.params();

@@ -18,8 +18,13 @@
 //! | NP     | files with at least one correctly aligned but unpickable instance                |
 //! | FB     | bad cycles by false best: pickable parts present, and the top-ranked detection   |
 //! |        | is a false positive or an unpickable instance                                    |
-//! | S      | bad cycles by starvation: pickable parts present and nothing detected            |
+//! | S      | bad cycles by starvation: pickable parts present and no pick made (nothing       |
+//! |        | detected, or nothing the engine found free to pick)                              |
 //!
+//! The **first pick** is the result's (`Recognition::first_pick`): the top-ranked detection
+//! when it is free to pick, else none. FB and S judge it, not the top rank: a scene where
+//! every detection is covered by another part gives no pick, and counts as starvation
+//! (`none_free_to_pick` says it was that rather than nothing detected).
 //! A file without pickable parts is never a bad cycle (5.4.3.2).
 //!
 //! Next to the thesis's table, every run reports **BOP-visible recall**: the share of
@@ -81,8 +86,12 @@ pub struct SceneScore {
     /// with pickable parts, as the thesis's table does). Absent in older summaries: false.
     #[serde(default)]
     pub wrong_first_pick: bool,
-    /// Pickable parts present and no detection at all.
+    /// Pickable parts present and no pick: no detection at all, or none free to pick.
     pub starvation: bool,
+    /// Detections made but none free to pick (every part found is covered by another, or
+    /// unreachable), pickable parts present or not. Absent in older summaries: false.
+    #[serde(default)]
+    pub none_free_to_pick: bool,
 }
 
 /// Mean distance, mm, between `points` under `a` and under `b`.
@@ -124,13 +133,15 @@ pub struct TruthInstance {
     pub visible_fraction: f64,
 }
 
-/// Scores one scene. `detections` are (rank, pose) in rank order.
+/// Scores one scene. `detections` are (rank, pose) in rank order; `first_pick` is the rank
+/// of the detection picked first (the result's first pick), None when no pick was made.
 pub fn score_scene(
     points: &[Point3<f64>],
     symmetries: &[Isometry3<f64>],
     diameter_mm: f64,
     truth: &[TruthInstance],
     detections: &[(usize, Isometry3<f64>)],
+    first_pick: Option<usize>,
     match_fraction: f64,
 ) -> SceneScore {
     let limit = match_fraction * diameter_mm;
@@ -192,10 +203,11 @@ pub fn score_scene(
             error_mm: instance.map_or(closest, |i| errors[d][i]),
         });
     }
-    let top = score.detections.iter().min_by_key(|v| v.rank);
-    score.wrong_first_pick = top.is_some_and(|v| v.verdict != Verdict::Pickable);
+    let pick = first_pick.and_then(|r| score.detections.iter().find(|v| v.rank == r));
+    score.none_free_to_pick = !detections.is_empty() && pick.is_none();
+    score.wrong_first_pick = pick.is_some_and(|v| v.verdict != Verdict::Pickable);
     if score.pickable > 0 {
-        match top {
+        match pick {
             None => score.starvation = true,
             Some(v) => score.false_best = v.verdict != Verdict::Pickable,
         }
@@ -338,6 +350,7 @@ mod tests {
             100.0,
             &truth,
             &detections,
+            Some(1),
             DEFAULT_MATCH_FRACTION,
         );
         assert_eq!(s.pickable, 3);
@@ -385,10 +398,26 @@ mod tests {
             visible_fraction: 1.0,
         }];
         let flipped = vec![(1, at(0.0, 0.0, 180.0))];
-        let no_sym = score_scene(&pts, &[], 100.0, &truth, &flipped, DEFAULT_MATCH_FRACTION);
+        let no_sym = score_scene(
+            &pts,
+            &[],
+            100.0,
+            &truth,
+            &flipped,
+            Some(1),
+            DEFAULT_MATCH_FRACTION,
+        );
         assert_eq!(no_sym.false_positives, 1);
         let syms = [Isometry3::identity(), at(0.0, 0.0, 180.0)];
-        let sym = score_scene(&pts, &syms, 100.0, &truth, &flipped, DEFAULT_MATCH_FRACTION);
+        let sym = score_scene(
+            &pts,
+            &syms,
+            100.0,
+            &truth,
+            &flipped,
+            Some(1),
+            DEFAULT_MATCH_FRACTION,
+        );
         assert_eq!(sym.recognised_pickable, 1);
         assert!(sym.detections[0].error_mm < 1e-9);
     }
@@ -415,6 +444,7 @@ mod tests {
             100.0,
             &truth,
             &[(1, at(0.0, 0.0, 0.0)), (2, at(300.0, 0.0, 0.0))],
+            Some(1),
             0.1,
         );
         assert!(s.false_best);
@@ -423,12 +453,25 @@ mod tests {
         assert_eq!((s.bop_targets, s.bop_recognised), (1, 1));
         let mut t = ThesisTable::default();
         t.add(&s);
-        t.add(&score_scene(&pts, &[], 100.0, &truth, &[], 0.1));
+        t.add(&score_scene(&pts, &[], 100.0, &truth, &[], None, 0.1));
         assert_eq!((t.bop_targets, t.bop_recognised), (2, 1));
         assert!((t.percents().bop_visible_recall - 50.0).abs() < 1e-9);
         // Nothing detected: starvation.
-        let s = score_scene(&pts, &[], 100.0, &truth, &[], 0.1);
-        assert!(s.starvation && !s.false_best);
+        let s = score_scene(&pts, &[], 100.0, &truth, &[], None, 0.1);
+        assert!(s.starvation && !s.false_best && !s.none_free_to_pick);
+        // Detections but none free to pick: no pick, which starves the cell but is not a
+        // false best, however wrong the top rank is.
+        let s = score_scene(
+            &pts,
+            &[],
+            100.0,
+            &truth,
+            &[(1, at(0.0, 0.0, 0.0)), (2, at(300.0, 0.0, 0.0))],
+            None,
+            0.1,
+        );
+        assert!(s.starvation && s.none_free_to_pick && !s.false_best && !s.wrong_first_pick);
+        assert_eq!(s.recognised_pickable, 1, "recall counts every detection");
         // No pickable parts: never a bad cycle.
         let s = score_scene(
             &pts,
@@ -436,15 +479,24 @@ mod tests {
             100.0,
             &truth[..1],
             &[(1, at(500.0, 0.0, 0.0))],
+            Some(1),
             0.1,
         );
         assert!(!s.starvation && !s.false_best);
         assert_eq!(s.false_positives, 1);
         // ... but a pick was made where none should be: a wrong first pick.
         assert!(s.wrong_first_pick);
-        let none = score_scene(&pts, &[], 100.0, &truth[..1], &[], 0.1);
+        let none = score_scene(&pts, &[], 100.0, &truth[..1], &[], None, 0.1);
         assert!(!none.wrong_first_pick, "no pick is not a wrong pick");
-        let right = score_scene(&pts, &[], 100.0, &truth, &[(1, at(300.0, 0.0, 0.0))], 0.1);
+        let right = score_scene(
+            &pts,
+            &[],
+            100.0,
+            &truth,
+            &[(1, at(300.0, 0.0, 0.0))],
+            Some(1),
+            0.1,
+        );
         assert!(!right.wrong_first_pick && !right.false_best);
     }
 }

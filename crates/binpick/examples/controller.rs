@@ -81,10 +81,16 @@ fn main() -> ExitCode {
             Some(why) => format!(" ({why}: search incomplete)"),
             None => String::new(),
         };
-        let Some(best) = result.detections.first() else {
-            match result.interrupted {
-                Some(_) => println!("{}: nothing verified in time: skip", scan.display()),
-                None => println!(
+        let Some(best) = result.first_pick() else {
+            match (&result.interrupted, result.detections.first()) {
+                (_, Some(top)) => println!(
+                    "{}: no part is free to pick ({} found; best: {}): shake the bin{incomplete}",
+                    scan.display(),
+                    result.detections.len(),
+                    top.rank_reason
+                ),
+                (Some(_), None) => println!("{}: nothing verified in time: skip", scan.display()),
+                (None, None) => println!(
                     "{}: nothing pickable (starvation): ask for a new scan or shake the bin",
                     scan.display()
                 ),
@@ -106,12 +112,7 @@ fn main() -> ExitCode {
                 result.detections.len(),
                 result.timings.total_ms,
             ),
-            // The first detection has grasps but none free: then no detection has one.
-            None if !best.grasps.is_empty() => println!(
-                "{}: every grasp of every part is blocked ({}): shake the bin",
-                scan.display(),
-                best.rank_reason
-            ),
+            // The first pick has a free grasp whenever grasps are declared.
             None => {
                 let t = best.pose.translation.vector;
                 let q = best.pose.rotation.quaternion();

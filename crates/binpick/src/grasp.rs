@@ -4,9 +4,10 @@
 //! grasp position back against `approach` for `clearance_length_mm`. Scene points in it
 //! (other than the part's own surface) and the placed surfaces of other detections block it.
 //!
-//! The pick order puts the detections with at least one free grasp first (keeping the
-//! engine's order otherwise), so the first pick is the best part the gripper can reach;
-//! a detection whose every grasp is blocked says what blocks each one.
+//! The pick order puts the detections free to pick with at least one free grasp first
+//! (keeping the engine's order otherwise), so the first pick is the best part the gripper
+//! can reach. A detection whose every grasp is blocked is not free to pick and says what
+//! blocks each one.
 
 use nalgebra::{Isometry3, Point3, Unit, Vector3};
 use serde::{Deserialize, Serialize};
@@ -199,9 +200,10 @@ impl Corridor {
 /// its points there.
 type Found = (Option<usize>, usize);
 
-/// Checks every grasp of every detection (scene frame), then moves the detections with no
-/// free grasp after the others (a stable partition of the engine's order), renumbers the
-/// ranks and appends the grasp verdict to each `rank_reason`. No grasps declared: nothing
+/// Checks every grasp of every detection (scene frame), then moves the detections not free
+/// to pick (no free grasp, or covered per the engine) after the others (a stable partition
+/// of the engine's order), renumbers the ranks, clears `free_to_pick` where every grasp is
+/// blocked and appends the grasp verdict to each `rank_reason`. No grasps declared: nothing
 /// changes.
 pub(crate) fn check_and_order(detections: &mut Vec<Detection>, g: &GraspScene) -> Result<()> {
     if g.grasps.is_empty() || detections.is_empty() {
@@ -293,8 +295,14 @@ pub(crate) fn check_and_order(detections: &mut Vec<Detection>, g: &GraspScene) -
         .iter()
         .map(|per| per.iter().any(|(c, _)| c.free))
         .collect();
+    // A part the engine found covered stays unpickable, free grasp or not.
+    let pickable: Vec<bool> = detections
+        .iter()
+        .zip(&reachable)
+        .map(|(d, &r)| d.free_to_pick && r)
+        .collect();
     let mut order: Vec<usize> = (0..detections.len()).collect();
-    order.sort_by_key(|&i| !reachable[i]);
+    order.sort_by_key(|&i| !pickable[i]);
     let mut rank_of = vec![0usize; detections.len()];
     for (r, &i) in order.iter().enumerate() {
         rank_of[i] = r + 1;
@@ -307,6 +315,7 @@ pub(crate) fn check_and_order(detections: &mut Vec<Detection>, g: &GraspScene) -
         };
         let engine_rank = d.rank;
         d.rank = r + 1;
+        d.free_to_pick = pickable[i];
         d.grasps = checks[i]
             .iter()
             .map(|(c, blockers)| GraspCheck {
@@ -397,6 +406,7 @@ mod tests {
             },
             height_mm: pose.translation.z,
             rank_reason: "engine".into(),
+            free_to_pick: true,
             grasps: Vec::new(),
         }
     }
@@ -462,9 +472,14 @@ mod tests {
         check_and_order(&mut d, &scene(&grasps, &surface, &points)).unwrap();
         assert_eq!(d[0].found_order().0, 1, "the part on top is the first pick");
         assert!(d[0].grasps[0].free, "{:?}", d[0].grasps);
+        assert!(d[0].free_to_pick);
         let blocked = &d[1];
         assert_eq!(blocked.rank, 2);
         assert!(!blocked.grasps[0].free);
+        assert!(
+            !blocked.free_to_pick,
+            "every grasp blocked: not free to pick"
+        );
         assert!(
             matches!(
                 blocked.grasps[0].blocked_by.as_slice(),
@@ -518,6 +533,13 @@ mod tests {
             (Vector3::from(d[1].grasps[0].position_mm) - Vector3::new(100.0, 0.0, 0.0)).norm()
                 < 1e-9
         );
+        // A part the engine found covered stays unpickable with a free grasp, after the
+        // free part.
+        let mut d = vec![det(0, best), det(1, other)];
+        d[0].free_to_pick = false;
+        check_and_order(&mut d, &scene(&grasps, &surface, &points)).unwrap();
+        assert_eq!(d[0].found_order().0, 1);
+        assert!(d[0].free_to_pick && !d[1].free_to_pick && d[1].grasps[0].free);
     }
 
     #[test]

@@ -13,7 +13,8 @@
 //! let recognizer = Recognizer::new(&model, params)?; // model features computed once
 //! let (scene, _) = load_cloud("scan.pcd".as_ref(), binpick::Units::Millimetres)?;
 //! let result = recognizer.recognize(&scene)?;
-//! if let Some(best) = result.detections.first() {
+//! // The first part free to pick (none when every part found lies under another).
+//! if let Some(best) = result.first_pick() {
 //!     println!("pick at {}", best.pose.translation.vector);
 //! }
 //! // With a time budget and a cancel token: partial, flagged results instead of an error.

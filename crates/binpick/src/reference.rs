@@ -237,6 +237,7 @@ fn convert(r: ReferenceResult, p: &Params) -> Result<ReferenceRun> {
             },
             height_mm: height_mm(&pose, &final_kp, p.ranking.up),
             rank_reason: String::new(),
+            free_to_pick: true,
             grasps: Vec::new(),
         });
     }

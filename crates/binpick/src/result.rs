@@ -10,7 +10,7 @@
 //!
 //! ```json
 //! {
-//!   "schema_version": 2, "frame_id": "scanner",
+//!   "schema_version": 3, "frame_id": "scanner",
 //!   "scene": "scan.pcd", "model": "part.pcd", "units": "mm", "algorithm": 1,
 //!   "engine": "scene-voting", "params": { ...every parameter actually used... },
 //!   "detections": [
@@ -28,6 +28,7 @@
 //!       "view": { "visibility": 0.93, ... },      // scene-voting engine only
 //!       "icp": { "converged": true, "iterations": 9, "fitness_mm2": 0.41, "adopted": true },
 //!       "height_mm": 13.6, "rank_reason": "...",
+//!       "free_to_pick": true,        // false: covered by another part or unreachable
 //!       "initial_pose": [16 numbers] } ],
 //!   "preprocess": { "input_points": ..., "outside_roi": ..., "isolated_removed": ..., "voxel_merged": ...,
 //!                   "support_planes": [...], "remaining": ... },
@@ -76,6 +77,12 @@ pub struct Detection {
     pub height_mm: f64,
     /// Why it ranks where it does.
     pub rank_reason: String,
+    /// Whether the robot may take it: nothing else covers more than `covered_max` of its
+    /// visible surface (scene-voting engine) and, with declared grasps, at least one approach
+    /// corridor is free. Detections free to pick come first in the pick order;
+    /// [`Recognition::first_pick`] is the first of them, or none. The thesis engines pick
+    /// their first rank (4.2.2): always true there.
+    pub free_to_pick: bool,
     /// The part's grasps (declared in the model's sidecar) in the result's frame, each with
     /// whether its approach corridor is free and what blocks it. Empty without declared
     /// grasps.
@@ -209,7 +216,7 @@ impl Serialize for Detection {
         use serde::ser::SerializeStruct;
         let t = self.pose.translation.vector;
         let q = self.pose.rotation.quaternion();
-        let mut r = s.serialize_struct("Detection", 17)?;
+        let mut r = s.serialize_struct("Detection", 18)?;
         r.serialize_field("rank", &self.rank)?;
         r.serialize_field("pose", &pose_to_row_major(&self.pose))?;
         r.serialize_field("pose_ros", &RosPose::from_pose_mm(&self.pose))?;
@@ -243,6 +250,7 @@ impl Serialize for Detection {
         r.serialize_field("icp", &self.icp)?;
         r.serialize_field("height_mm", &self.height_mm)?;
         r.serialize_field("rank_reason", &self.rank_reason)?;
+        r.serialize_field("free_to_pick", &self.free_to_pick)?;
         r.serialize_field("initial_pose", &pose_to_row_major(&self.initial_pose))?;
         if !self.grasps.is_empty() {
             r.serialize_field("grasps", &self.grasps)?;
@@ -279,6 +287,9 @@ struct DetectionJson {
     icp: IcpReport,
     height_mm: f64,
     rank_reason: String,
+    /// Absent in results written before it: every detection counted as free to pick.
+    #[serde(default = "free_by_default")]
+    free_to_pick: bool,
     #[serde(default)]
     initial_pose: Option<RowMajor4x4>,
     #[serde(default)]
@@ -323,15 +334,23 @@ impl TryFrom<DetectionJson> for Detection {
             icp: d.icp,
             height_mm: d.height_mm,
             rank_reason: d.rank_reason,
+            free_to_pick: d.free_to_pick,
             grasps: d.grasps,
         })
     }
 }
 
+fn free_by_default() -> bool {
+    true
+}
+
 /// The version of the result document written by this library (`schema_version`; the
-/// schema is `schema/result.schema.json`). Version 1 is the unversioned format written before
-/// it (no `schema_version`, `frame_id` or `pose_ros`); it still loads.
-pub const RESULT_SCHEMA_VERSION: u32 = 2;
+/// schema is `schema/result.schema.json`). Version 3 adds each detection's `free_to_pick`:
+/// `detections[0]` is the first pick only when it is free to pick. Version 2 documents load
+/// with every detection free to pick (their first rank was the pick); version 1 is the
+/// unversioned format written before versions (no `schema_version`, `frame_id` or
+/// `pose_ros`), and still loads.
+pub const RESULT_SCHEMA_VERSION: u32 = 3;
 
 /// The frame poses are given in unless a caller says otherwise: the scanner's (the frame of
 /// the scene cloud as read).
@@ -781,7 +800,8 @@ pub struct RefusedCandidate {
 #[derive(Clone, Debug, PartialEq)]
 #[non_exhaustive]
 pub struct Recognition {
-    /// Accepted detections, ranked: `detections[0]` is the one to pick.
+    /// Accepted detections in pick order: `detections[0]` is the one to pick when it is
+    /// free to pick ([`first_pick`](Self::first_pick)).
     pub detections: Vec<Detection>,
     /// What preprocessing did.
     pub preprocess: PreprocessReport,
@@ -812,6 +832,13 @@ fn reframe(detections: &mut [Detection], from: &Isometry3<f64>, to: &Isometry3<f
 }
 
 impl Recognition {
+    /// The detection to pick: the first in pick order when it is
+    /// [free to pick](Detection::free_to_pick); none when nothing was found or every part
+    /// found is covered by another (or, with grasps, unreachable): rescan or clear the pile.
+    pub fn first_pick(&self) -> Option<&Detection> {
+        first_pick(&self.detections)
+    }
+
     /// Gives every pose and grasp in `frame` instead of the current one (ranking values such
     /// as `height_mm` stay measured in the scanner's frame, along `up`).
     pub fn express_in(&mut self, frame: &OutputFrame) {
@@ -906,6 +933,10 @@ pub struct RecognitionReport {
     pub interrupted: Option<Interruption>,
 }
 
+pub(crate) fn first_pick(detections: &[Detection]) -> Option<&Detection> {
+    detections.first().filter(|d| d.free_to_pick)
+}
+
 fn unversioned() -> u32 {
     1
 }
@@ -915,6 +946,11 @@ fn scanner_frame() -> String {
 }
 
 impl RecognitionReport {
+    /// The detection to pick, as [`Recognition::first_pick`].
+    pub fn first_pick(&self) -> Option<&Detection> {
+        first_pick(&self.detections)
+    }
+
     /// The document for `r`, poses in its frame (the scanner's unless it was moved).
     pub fn new(scene: &str, model: &str, engine: &str, params: &Params, r: &Recognition) -> Self {
         Self {
@@ -989,6 +1025,7 @@ mod tests {
             },
             height_mm: 12.0,
             rank_reason: "best".into(),
+            free_to_pick: true,
             grasps: Vec::new(),
         }
     }
@@ -1015,8 +1052,22 @@ mod tests {
         // A record written before `initial_pose` existed still loads.
         let mut old = v;
         old.as_object_mut().unwrap().remove("initial_pose");
-        let back: Detection = serde_json::from_value(old).unwrap();
+        let back: Detection = serde_json::from_value(old.clone()).unwrap();
         assert_eq!(back.initial_pose, back.pose);
+        // `free_to_pick` is written, read back, and true in records written before it.
+        let covered = Detection {
+            free_to_pick: false,
+            ..d
+        };
+        let v = serde_json::to_value(&covered).unwrap();
+        assert_eq!(v["free_to_pick"], false);
+        let back: Detection = serde_json::from_value(v).unwrap();
+        assert!(!back.free_to_pick);
+        assert_eq!(first_pick(std::slice::from_ref(&back)), None);
+        old.as_object_mut().unwrap().remove("free_to_pick");
+        let back: Detection = serde_json::from_value(old).unwrap();
+        assert!(back.free_to_pick);
+        assert_eq!(first_pick(std::slice::from_ref(&back)), Some(&back));
     }
 
     #[test]

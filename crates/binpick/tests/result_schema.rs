@@ -120,6 +120,7 @@ fn real_results_of_both_engines_validate_and_their_ros_poses_are_the_4x4() {
         assert_valid(&v);
         for d in v["detections"].as_array().unwrap() {
             assert_ros_pose_is_the_matrix(d);
+            assert!(d["free_to_pick"].is_boolean(), "{d}");
         }
         // The document reads back, and what it reads back as writes a valid document with
         // the same detections.
@@ -154,6 +155,9 @@ fn schema_rejects_what_it_should() {
         .unwrap()
         .remove("w");
     assert!(!validator.is_valid(&wxyz));
+    let mut flag = good.clone();
+    flag["detections"][0]["free_to_pick"] = serde_json::json!("yes");
+    assert!(!validator.is_valid(&flag));
 }
 
 #[test]

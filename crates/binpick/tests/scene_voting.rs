@@ -426,7 +426,7 @@ fn brackets_lying_on_the_edge_of_their_sheet_in_a_pile_are_found() {
         s.on_edge.len()
     );
     // The first pick is a right pose.
-    let first = &r.detections[0].pose;
+    let first = &r.first_pick().expect("a part free to pick").pose;
     assert!(
         s.pickable.iter().chain(&s.on_edge).any(|t| {
             pose::translation_error_mm(t, first) < 0.05 * s.diameter_mm

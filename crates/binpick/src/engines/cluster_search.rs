@@ -277,6 +277,7 @@ impl ClusterSearch<'_> {
                     icp: fin.icp,
                     height_mm: height_mm(&fin.pose, &self.model.final_keypoints, p.ranking.up),
                     rank_reason: String::new(),
+                    free_to_pick: true,
                     grasps: Vec::new(),
                 });
                 return Ok(Ok(fin.pose));

@@ -754,6 +754,8 @@ impl SceneVoting<'_> {
             icp: c.icp.clone(),
             height_mm: height_mm(&pose, &self.model.dense.points, self.params.ranking.up),
             rank_reason: String::new(),
+            // Decided by the pick order (`rank_by_view`).
+            free_to_pick: true,
             grasps: Vec::new(),
         }
     }

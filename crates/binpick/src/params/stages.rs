@@ -315,8 +315,9 @@ stage_config! {
         /// scanner looking down).
         up: [f64; 3] = [0.0, 0.0, 1.0], direction();
         /// Scene-voting engine: a part with more than this share of its visible surface
-        /// covered by something other than the belt or bin is not free to pick. A
-        /// neighbour's edge resting on a part covers a few percent of it (right plates and
+        /// covered by something other than the belt or bin is not free to pick: it ranks
+        /// after the free ones, and with no free part there is no first pick. A neighbour's
+        /// edge resting on a part covers a few percent of it (right plates and
         /// rods at 3.2-4.3 % lost the first pick to wrong free poses at 3 %).
         covered_max: f64 = 0.05, within(0.0, 1.0, "");
         /// Scene-voting engine: pick confidences (the visible share confirmed by surface
