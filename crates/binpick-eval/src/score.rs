@@ -437,16 +437,13 @@ mod tests {
                 visible_fraction: 1.0,
             },
         ];
-        // Top detection on the unpickable instance: false best, and NP.
-        let s = score_scene(
-            &pts,
-            &[],
-            100.0,
-            &truth,
-            &[(1, at(0.0, 0.0, 0.0)), (2, at(300.0, 0.0, 0.0))],
-            Some(1),
-            0.1,
-        );
+        // Top detection on the unpickable instance, the other on the pickable one.
+        let both = |first_pick| {
+            let found = [(1, at(0.0, 0.0, 0.0)), (2, at(300.0, 0.0, 0.0))];
+            score_scene(&pts, &[], 100.0, &truth, &found, first_pick, 0.1)
+        };
+        // The top one picked: false best, and NP.
+        let s = both(Some(1));
         assert!(s.false_best);
         assert_eq!((s.recognised_unpickable, s.recognised_pickable), (1, 1));
         // BOP's rule: the 5 %-visible instance is no target, its match is not counted.
@@ -461,15 +458,7 @@ mod tests {
         assert!(s.starvation && !s.false_best && !s.none_free_to_pick);
         // Detections but none free to pick: no pick, which starves the cell but is not a
         // false best, however wrong the top rank is.
-        let s = score_scene(
-            &pts,
-            &[],
-            100.0,
-            &truth,
-            &[(1, at(0.0, 0.0, 0.0)), (2, at(300.0, 0.0, 0.0))],
-            None,
-            0.1,
-        );
+        let s = both(None);
         assert!(s.starvation && s.none_free_to_pick && !s.false_best && !s.wrong_first_pick);
         assert_eq!(s.recognised_pickable, 1, "recall counts every detection");
         // No pickable parts: never a bad cycle.
