@@ -23,6 +23,7 @@ pub fn placed(detections: &[Detection]) -> Result<Vec<Placed>> {
                     visibility: v.visibility,
                     fit: v.fit,
                 }),
+                free_to_pick: d.free_to_pick,
             })
         })
         .collect()

@@ -133,6 +133,7 @@ fn main() -> Result<(), Box<dyn Error>> {
             final_score: 1.8,
             initial_score: 412.0,
             seen: None,
+            free_to_pick: true,
         },
         Placed {
             rank: 2,
@@ -140,6 +141,7 @@ fn main() -> Result<(), Box<dyn Error>> {
             final_score: 3.5,
             initial_score: 388.5,
             seen: None,
+            free_to_pick: true,
         },
         Placed {
             rank: 3,
@@ -147,6 +149,7 @@ fn main() -> Result<(), Box<dyn Error>> {
             final_score: 14.2,
             initial_score: 251.0,
             seen: None,
+            free_to_pick: true,
         },
         Placed {
             rank: 4,
@@ -154,6 +157,7 @@ fn main() -> Result<(), Box<dyn Error>> {
             final_score: 6.9,
             initial_score: 301.2,
             seen: None,
+            free_to_pick: true,
         },
     ];
     let opts = RenderOptions {
@@ -247,6 +251,7 @@ fn main() -> Result<(), Box<dyn Error>> {
             final_score: 1.0 + i as f64 * 1.3,
             initial_score: 420.0 - i as f64 * 17.0,
             seen: None,
+            free_to_pick: true,
         })
         .collect();
     let opts_pile = RenderOptions {

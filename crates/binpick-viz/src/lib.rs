@@ -49,6 +49,9 @@ pub struct Placed {
     /// engines. When every detection has it and colours follow the rank, the legend shows
     /// it in place of the scores.
     pub seen: Option<Seen>,
+    /// Whether the robot may take it (the result's `free_to_pick`): when the first in rank
+    /// is not, nothing is picked and the legend says so.
+    pub free_to_pick: bool,
 }
 
 /// A detection's view check (scene-voting engine), as the legend shows it.

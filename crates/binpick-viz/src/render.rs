@@ -1078,7 +1078,13 @@ fn draw_legend(
         } else {
             0.0
         };
-    let room = ((bottom - footer_h - y) / row_h).floor().max(1.0) as usize;
+    let no_pick = placed
+        .iter()
+        .min_by_key(|p| p.rank)
+        .is_some_and(|p| !p.free_to_pick);
+    let room = (((bottom - footer_h - y) / row_h).floor() as usize)
+        .saturating_sub(usize::from(no_pick))
+        .max(1);
     let mut shown = 0;
     if placed.is_empty() {
         draw::text(
@@ -1162,6 +1168,20 @@ fn draw_legend(
                 Anchor::TopLeft,
                 &format!("\u{2026} and {more} more"),
                 grey,
+                None,
+            );
+            y += row_h;
+        }
+        if no_pick {
+            draw::text(
+                img,
+                bold,
+                fs,
+                x0,
+                y,
+                Anchor::TopLeft,
+                "no pick: none free",
+                [170, 20, 20],
                 None,
             );
             y += row_h;
@@ -1276,6 +1296,7 @@ mod tests {
             final_score: 2.5,
             initial_score: 300.0,
             seen,
+            free_to_pick: true,
         }
     }
 

@@ -14,6 +14,7 @@ fn placed(rank: usize, pose: nalgebra::Isometry3<f64>) -> Placed {
         final_score: 1.0,
         initial_score: 100.0,
         seen: None,
+        free_to_pick: true,
     }
 }
 

@@ -21,6 +21,7 @@ fn placed(rank: usize, pose: nalgebra::Isometry3<f64>) -> Placed {
         final_score: 2.5,
         initial_score: 300.0,
         seen: None,
+        free_to_pick: true,
     }
 }
 
@@ -209,6 +210,33 @@ fn zero_detections_still_renders_the_scene() {
         .filter(|p| p.0[0] > 120 && p.0[1] < 60 && p.0[2] < 60)
         .count();
     assert!(msg > 200, "{msg} message pixels");
+}
+
+#[test]
+fn a_first_detection_not_free_to_pick_is_said_to_give_no_pick() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = floor(80.0, 2.0);
+    let model = plate(30.0, 1.0);
+    // Dark red message pixels, anti-aliased on white: red well above green, green and blue
+    // alike (rank 1's red has more blue than green).
+    let message = |free_to_pick: bool| {
+        let out = dir.path().join(format!("{free_to_pick}.png"));
+        let p = [Placed {
+            free_to_pick,
+            ..placed(1, at(0.0, 0.0, 5.0))
+        }];
+        let info = render_png(&scene, &model, &p, &opts(800, 400), &out).unwrap();
+        assert_eq!(info.legend_rows, 1);
+        let img = read_png(&out);
+        img.pixels()
+            .filter(|p| {
+                let [r, g, b] = p.0.map(i32::from);
+                r - g > 60 && (g - b).abs() < 12
+            })
+            .count()
+    };
+    let (picked, none) = (message(true), message(false));
+    assert!(none > picked + 100, "{picked} -> {none} message pixels");
 }
 
 #[test]
