@@ -327,6 +327,9 @@ const LEGEND_NOTES: [&str; 3] = [
 ];
 
 /// The legend's notes when it shows the view check ([`crate::Seen`]).
+/// Dark red of the notices ("no detections", "no pick").
+const NOTICE_RED: [u8; 3] = [170, 20, 20];
+
 const SEEN_NOTES: [&str; 3] = [
     "vis = % of its visible surface",
     "the scan confirms (higher = better)",
@@ -821,7 +824,7 @@ fn draw_view(
             f64::from(plot.y) + f64::from(fs) * 2.0,
             Anchor::Center,
             "no detections",
-            [170, 20, 20],
+            NOTICE_RED,
             Some((WHITE, (fs / 6.0).ceil() as u32)),
         );
     }
@@ -1086,20 +1089,7 @@ fn draw_legend(
         .saturating_sub(usize::from(no_pick))
         .max(1);
     let mut shown = 0;
-    if placed.is_empty() {
-        draw::text(
-            img,
-            bold,
-            fs,
-            x0,
-            y,
-            Anchor::TopLeft,
-            "no detections",
-            [170, 20, 20],
-            None,
-        );
-        y += row_h;
-    } else {
+    if !placed.is_empty() {
         let fits = placed.len() <= room;
         let n_rows = if fits {
             placed.len()
@@ -1172,20 +1162,25 @@ fn draw_legend(
             );
             y += row_h;
         }
-        if no_pick {
-            draw::text(
-                img,
-                bold,
-                fs,
-                x0,
-                y,
-                Anchor::TopLeft,
-                "no pick: none free",
-                [170, 20, 20],
-                None,
-            );
-            y += row_h;
-        }
+    }
+    let notice = if placed.is_empty() {
+        Some("no detections")
+    } else {
+        no_pick.then_some("no pick: none free")
+    };
+    if let Some(notice) = notice {
+        draw::text(
+            img,
+            bold,
+            fs,
+            x0,
+            y,
+            Anchor::TopLeft,
+            notice,
+            NOTICE_RED,
+            None,
+        );
+        y += row_h;
     }
     y += f * 0.5;
     for line in columns
