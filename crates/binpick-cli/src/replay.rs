@@ -136,6 +136,8 @@ struct Summary<'a> {
     failed: usize,
     detections_total: usize,
     scans_without_detection: usize,
+    /// Scans with detections but none free to pick: no first pick.
+    scans_none_free_to_pick: usize,
     /// Scans whose time budget ran out (their JSON holds what was verified before it).
     budget_exhausted: usize,
     time_ms_median: f64,
@@ -151,6 +153,7 @@ struct CompareSummary<'a> {
     config: String,
     detections_total: usize,
     scans_without_detection: usize,
+    scans_none_free_to_pick: usize,
     failed: usize,
     budget_exhausted: usize,
     time_ms_median: f64,
@@ -296,6 +299,7 @@ pub fn run(a: Args) -> Result<Done> {
                 .unwrap_or_default(),
             detections_total: other_totals.detections,
             scans_without_detection: other_totals.without,
+            scans_none_free_to_pick: other_totals.none_free,
             failed: other_totals.failed,
             budget_exhausted: other_totals.budget_exhausted,
             time_ms_median: other_totals.median_ms,
@@ -316,6 +320,7 @@ pub fn run(a: Args) -> Result<Done> {
         failed: totals.failed,
         detections_total: totals.detections,
         scans_without_detection: totals.without,
+        scans_none_free_to_pick: totals.none_free,
         budget_exhausted: totals.budget_exhausted,
         time_ms_median: totals.median_ms,
         time_ms_p95: totals.p95_ms,
@@ -398,6 +403,8 @@ struct Totals {
     failed: usize,
     detections: usize,
     without: usize,
+    /// Scans with detections but none free to pick.
+    none_free: usize,
     /// Scans whose time budget ran out (their JSON holds what was verified before it).
     budget_exhausted: usize,
     median_ms: f64,
@@ -414,6 +421,10 @@ impl Totals {
             failed: results.len() - ok.len(),
             detections: ok.iter().map(|r| r.detections).sum(),
             without: ok.iter().filter(|r| r.detections == 0).count(),
+            none_free: ok
+                .iter()
+                .filter(|r| r.detections > 0 && pick(r).is_none())
+                .count(),
             budget_exhausted: ok.iter().filter(|r| interrupted(r)).count(),
             median_ms,
             p95_ms,
@@ -473,8 +484,15 @@ fn print_table(
 fn print_totals(out: &mut impl std::io::Write, t: &Totals) -> std::io::Result<()> {
     writeln!(
         out,
-        "{} scan(s): {} detection(s), {} without any, {} failed, {} out of time budget; time per scan median {:.0} ms, p95 {:.0} ms",
-        t.scans, t.detections, t.without, t.failed, t.budget_exhausted, t.median_ms, t.p95_ms
+        "{} scan(s): {} detection(s), {} without any, {} with none free to pick (no pick), {} failed, {} out of time budget; time per scan median {:.0} ms, p95 {:.0} ms",
+        t.scans,
+        t.detections,
+        t.without,
+        t.none_free,
+        t.failed,
+        t.budget_exhausted,
+        t.median_ms,
+        t.p95_ms
     )
 }
 
@@ -547,13 +565,15 @@ fn print_compare_totals(
 ) -> std::io::Result<()> {
     writeln!(
         out,
-        "total over {scans} scan(s): detections {} -> {} ({:+}), scans without detection {} -> {} ({:+}), failed {} -> {}, out of time budget {} -> {}, median ms {:.0} -> {:.0} ({:+.0}); first pick changed on {changed} scan(s) (moved > {PICK_MOVED_MM} mm, appeared or gone)",
+        "total over {scans} scan(s): detections {} -> {} ({:+}), scans without detection {} -> {} ({:+}), with none free to pick {} -> {}, failed {} -> {}, out of time budget {} -> {}, median ms {:.0} -> {:.0} ({:+.0}); first pick changed on {changed} scan(s) (moved > {PICK_MOVED_MM} mm, appeared or gone)",
         a.detections,
         b.detections,
         b.detections as i64 - a.detections as i64,
         a.without,
         b.without,
         b.without as i64 - a.without as i64,
+        a.none_free,
+        b.none_free,
         a.failed,
         b.failed,
         a.budget_exhausted,

@@ -107,6 +107,11 @@ fn csv_table_pictures_and_names_that_never_collide() {
         assert!(table.contains(&r["name"]), "{table}");
     }
     assert!(table.contains("2 scan(s): 2 detection(s)"), "{table}");
+    // Each part found is free to pick: no scan without a pick.
+    assert!(table.contains("0 with none free to pick"), "{table}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["scans_none_free_to_pick"], 0);
 }
 
 #[test]
