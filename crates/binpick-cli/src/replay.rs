@@ -423,7 +423,7 @@ impl Totals {
             without: ok.iter().filter(|r| r.detections == 0).count(),
             none_free: ok
                 .iter()
-                .filter(|r| r.detections > 0 && pick(r).is_none())
+                .filter(|r| r.report.as_ref().is_some_and(|rep| rep.none_free_to_pick()))
                 .count(),
             budget_exhausted: ok.iter().filter(|r| interrupted(r)).count(),
             median_ms,

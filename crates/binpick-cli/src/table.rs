@@ -86,28 +86,29 @@ pub fn print_ranked(out: &mut impl std::io::Write, r: &Recognition) -> std::io::
         )?;
     }
     writeln!(out, "poses in frame {}", r.frame.frame_id)?;
-    match r.first_pick() {
-        Some(first) => {
-            if let Some(g) = first.grasps.iter().find(|g| g.free) {
-                writeln!(
-                    out,
-                    "first pick: {} at ({:.2}, {:.2}, {:.2}) mm, approach ({:.4}, {:.4}, {:.4})",
-                    g.name,
-                    g.position_mm[0],
-                    g.position_mm[1],
-                    g.position_mm[2],
-                    g.approach[0],
-                    g.approach[1],
-                    g.approach[2]
-                )?;
-            }
-        }
-        None if !r.detections.is_empty() => writeln!(
+    if r.none_free_to_pick() {
+        writeln!(
             out,
             "no pick: no part found is free to pick (each lies under another part or has \
              every grasp blocked): rescan or clear the pile"
-        )?,
-        None => {}
+        )?;
+    }
+    // The first pick has a free grasp whenever grasps are declared.
+    if let Some(g) = r
+        .first_pick()
+        .and_then(|d| d.grasps.iter().find(|g| g.free))
+    {
+        writeln!(
+            out,
+            "first pick: {} at ({:.2}, {:.2}, {:.2}) mm, approach ({:.4}, {:.4}, {:.4})",
+            g.name,
+            g.position_mm[0],
+            g.position_mm[1],
+            g.position_mm[2],
+            g.approach[0],
+            g.approach[1],
+            g.approach[2]
+        )?;
     }
     Ok(())
 }

@@ -839,6 +839,11 @@ impl Recognition {
         first_pick(&self.detections)
     }
 
+    /// Parts were found but none is free to pick: no pick (not "nothing found").
+    pub fn none_free_to_pick(&self) -> bool {
+        none_free_to_pick(&self.detections)
+    }
+
     /// Gives every pose and grasp in `frame` instead of the current one (ranking values such
     /// as `height_mm` stay measured in the scanner's frame, along `up`).
     pub fn express_in(&mut self, frame: &OutputFrame) {
@@ -937,6 +942,10 @@ pub(crate) fn first_pick(detections: &[Detection]) -> Option<&Detection> {
     detections.first().filter(|d| d.free_to_pick)
 }
 
+fn none_free_to_pick(detections: &[Detection]) -> bool {
+    !detections.is_empty() && first_pick(detections).is_none()
+}
+
 fn unversioned() -> u32 {
     1
 }
@@ -949,6 +958,11 @@ impl RecognitionReport {
     /// The detection to pick, as [`Recognition::first_pick`].
     pub fn first_pick(&self) -> Option<&Detection> {
         first_pick(&self.detections)
+    }
+
+    /// As [`Recognition::none_free_to_pick`].
+    pub fn none_free_to_pick(&self) -> bool {
+        none_free_to_pick(&self.detections)
     }
 
     /// The document for `r`, poses in its frame (the scanner's unless it was moved).
@@ -1064,6 +1078,8 @@ mod tests {
         let back: Detection = serde_json::from_value(v).unwrap();
         assert!(!back.free_to_pick);
         assert_eq!(first_pick(std::slice::from_ref(&back)), None);
+        assert!(none_free_to_pick(std::slice::from_ref(&back)));
+        assert!(!none_free_to_pick(&[]), "nothing found is not 'none free'");
         old.as_object_mut().unwrap().remove("free_to_pick");
         let back: Detection = serde_json::from_value(old).unwrap();
         assert!(back.free_to_pick);
