@@ -10,6 +10,7 @@
 #include <flann/flann.hpp>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 #include <unordered_map>
@@ -81,10 +82,58 @@ Nearest nearest_within(const BatchIndex& index, std::size_t n, const Points& poi
   return out;
 }
 
+// Each point's `k` nearest neighbours within the bound (FLANN's exclusive float `bound`, as
+// nearest_within), nearest first; index -1 where fewer lie within it. Entries k i to
+// k i + k - 1.
+template <typename Points, typename Get>
+Nearest k_nearest_within(const BatchIndex& index, std::size_t n, const Points& points, Get get,
+                         int k, float bound) {
+  std::vector<float> queries(n * 3);
+  for (std::size_t i = 0; i < n; ++i) {
+    const pcl::PointXYZ& p = get(points, i);
+    queries[3 * i] = p.x;
+    queries[3 * i + 1] = p.y;
+    queries[3 * i + 2] = p.z;
+  }
+  Nearest out{std::vector<int>(k * n, -1), std::vector<float>(k * n)};
+  if (n == 0) return out;
+  flann::Matrix<int> nn_mat(out.index.data(), n, k);
+  flann::Matrix<float> d2_mat(out.distance_sqr.data(), n, k);
+  flann::SearchParams params(-1, 0.0f);
+  params.max_neighbors = k;
+  index.index->radiusSearch(flann::Matrix<float>(queries.data(), n, 3), nn_mat, d2_mat, bound,
+                            params);
+  return out;
+}
+
+// FLANN's squared distance (L2_Simple<float>: ((0 + dx^2) + dy^2) + dz^2, in float).
+inline float flann_distance_sqr(const float* a, const pcl::PointXYZ& q) {
+  float result = 0.0f;
+  float diff = q.x - a[0];
+  result += diff * diff;
+  diff = q.y - a[1];
+  result += diff * diff;
+  diff = q.z - a[2];
+  result += diff * diff;
+  return result;
+}
+
+// Relative margin on the certificate below: far wider than float rounding of distances
+// (a few 1e-7), so FLANN's float search picks the same point.
+constexpr double CERTIFY_MARGIN = 1e-4;
+
+// Points an ICP source point keeps from its last search.
+constexpr int ANCHOR_POINTS = 8;
+
 // PCL's CorrespondenceEstimation with the same answers, but one FLANN call per ICP iteration
 // instead of one per source point: PCL's per-point path enters an OpenMP region and allocates
 // for every query, which made that overhead most of ICP's time. Nearest neighbours come from
 // an index identical to PCL's KdTreeFLANN, so correspondences are the same as PCL's.
+// Between iterations a source point moves little: each keeps the ANCHOR_POINTS nearest
+// target points of its last search, and while it stays nearer to one of them than any other
+// target point can have come (the last search's reach less how far it moved since), its
+// nearest point is that one and the kd-tree is not searched (about 6 queries in 10 on a belt
+// scan). Equally near points go to the single search, which picks as PCL does.
 class BatchCorrespondenceEstimation
     : public pcl::registration::CorrespondenceEstimation<pcl::PointXYZ, pcl::PointXYZ, double> {
  public:
@@ -95,19 +144,102 @@ class BatchCorrespondenceEstimation
     check_interrupt("ICP iteration");  // once per ICP iteration
     if (!initCompute()) return;
     const std::size_t n = indices_->size();
-    // Within the correspondence distance only: the correspondences PCL would keep.
-    const Nearest near = nearest_within(
-        *index_, n, *input_,
-        [this](const PointCloudXYZ& cloud, std::size_t i) -> const pcl::PointXYZ& {
-          return cloud[(*indices_)[i]];
+    const double max_sqr = max_distance * max_distance;
+    const float bound =
+        std::nextafter(static_cast<float>(max_sqr), std::numeric_limits<float>::infinity());
+    if (anchors_.size() != n) anchors_.assign(n, Anchor{});
+    std::vector<int> nearest(n, -1);
+    std::vector<float> distance_sqr(n, 0.0f);
+    auto take = [&](std::size_t i, int j, float d2) {
+      if (j >= 0 && d2 < bound && d2 <= max_sqr) {
+        nearest[i] = j;
+        distance_sqr[i] = d2;
+      }
+    };
+    std::vector<std::size_t> searched;  // re-anchored with a new search
+    std::vector<std::size_t> tied;      // two points equally near: the single search decides
+    for (std::size_t i = 0; i < n; ++i) {
+      const pcl::PointXYZ& q = (*input_)[(*indices_)[i]];
+      const Anchor& a = anchors_[i];
+      if (a.count > 0) {
+        // Every point not cached lay at least a.reach from the anchor, so at least
+        // a.reach - moved from q: the nearest cached point is q's nearest when nearer.
+        const double dx = double(q.x) - a.x, dy = double(q.y) - a.y, dz = double(q.z) - a.z;
+        const double moved = std::sqrt(dx * dx + dy * dy + dz * dz);
+        int best = -1;
+        float best_d2 = std::numeric_limits<float>::infinity();
+        bool tie = false;
+        for (int m = 0; m < a.count; ++m) {
+          const float d2 = flann_distance_sqr(&index_->xyz[3 * std::size_t(a.cached[m])], q);
+          if (d2 < best_d2) {
+            best = a.cached[m];
+            best_d2 = d2;
+            tie = false;
+          } else if (d2 == best_d2) {
+            tie = true;
+          }
+        }
+        if ((std::sqrt(double(best_d2)) + moved) * (1.0 + CERTIFY_MARGIN) < a.reach) {
+          if (tie) {
+            tied.push_back(i);
+          } else {
+            take(i, best, best_d2);
+          }
+          continue;
+        }
+      }
+      searched.push_back(i);
+    }
+    // Within the correspondence distance only: the correspondences PCL would keep, and the
+    // nearest few around them, which anchor the next iterations.
+    const Nearest near = k_nearest_within(
+        *index_, searched.size(), *input_,
+        [this, &searched](const PointCloudXYZ& cloud, std::size_t k) -> const pcl::PointXYZ& {
+          return cloud[(*indices_)[searched[k]]];
         },
-        max_distance * max_distance);
+        ANCHOR_POINTS, bound);
+    for (std::size_t k = 0; k < searched.size(); ++k) {
+      const std::size_t i = searched[k];
+      const int* idx = &near.index[ANCHOR_POINTS * k];
+      const float* d2 = &near.distance_sqr[ANCHOR_POINTS * k];
+      Anchor& a = anchors_[i];
+      a = Anchor{};
+      if (idx[0] < 0) continue;
+      int count = 0;
+      while (count < ANCHOR_POINTS && idx[count] >= 0) {
+        a.cached[count] = idx[count];
+        ++count;
+      }
+      if (count > 1 && !(d2[0] < d2[1])) {
+        tied.push_back(i);
+      } else {
+        take(i, idx[0], d2[0]);
+      }
+      const pcl::PointXYZ& q = (*input_)[(*indices_)[i]];
+      a.x = q.x;
+      a.y = q.y;
+      a.z = q.z;
+      a.count = count;
+      // Fewer within the bound: every other point lies at least that far.
+      a.reach = std::sqrt(double(count == ANCHOR_POINTS ? d2[ANCHOR_POINTS - 1] : bound));
+    }
+    if (!tied.empty()) {
+      const Nearest single = nearest_within(
+          *index_, tied.size(), *input_,
+          [&](const PointCloudXYZ& cloud, std::size_t t) -> const pcl::PointXYZ& {
+            return cloud[(*indices_)[tied[t]]];
+          },
+          max_sqr);
+      for (std::size_t t = 0; t < tied.size(); ++t) {
+        take(tied[t], single.index[t], single.distance_sqr[t]);
+      }
+    }
     correspondences.resize(n);
     std::size_t valid = 0;
     for (std::size_t i = 0; i < n; ++i) {
-      if (near.index[i] < 0) continue;
+      if (nearest[i] < 0) continue;
       correspondences[valid++] =
-          pcl::Correspondence((*indices_)[i], near.index[i], near.distance_sqr[i]);
+          pcl::Correspondence((*indices_)[i], nearest[i], distance_sqr[i]);
     }
     correspondences.resize(valid);
     deinitCompute();
@@ -173,7 +305,17 @@ class BatchCorrespondenceEstimation
 
  private:
   const BatchIndex* index_;
+  // Where a source point was last searched, its nearest point there and the distance of the
+  // second nearest (or of the bound, when none was within it).
+  struct Anchor {
+    double x = 0.0, y = 0.0, z = 0.0;
+    std::array<int, ANCHOR_POINTS> cached{};
+    int count = 0;
+    double reach = 0.0;
+  };
+  std::vector<Anchor> anchors_;
 };
+
 
 // Registration::getFitnessScore(max_range) with the same answer: the mean squared distance
 // of the aligned source points whose nearest target point lies within `max_range` (PCL

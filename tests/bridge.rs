@@ -155,6 +155,54 @@ fn batched_icp_correspondences_match_pcl_exactly() {
     assert_ne!(run(true, false).transform, run(true, true).transform);
 }
 
+#[test]
+fn batched_icp_matches_pcl_on_a_lattice_full_of_equally_near_points() {
+    // A 1 mm lattice (three layers) and a source on the half-way points between lattice
+    // points: every source point starts equally near two to eight target points, and moves
+    // a little each iteration, so the kept neighbourhoods are used, left and refreshed. At
+    // 0.8 mm fewer target points than are kept lie within reach of a source point, at 3 mm
+    // more.
+    let mut target: Vec<Point> = Vec::new();
+    for i in 0..40 {
+        for j in 0..30 {
+            for k in 0..3 {
+                target.push([i as f32, j as f32, k as f32]);
+            }
+        }
+    }
+    let source: Vec<Point> = (0..300)
+        .map(|n| {
+            let (i, j) = (5 + n % 20, 5 + n / 20);
+            [i as f32 + 0.5, j as f32 + 0.25 * (n % 3) as f32, 1.5]
+        })
+        .collect();
+    let cloud = IndexedCloud::new(&target).unwrap();
+    for max_correspondence_distance in [0.8, 3.0] {
+        let run = |batch| {
+            cloud
+                .icp(
+                    &source,
+                    &IcpParams {
+                        initial: to_mat4(&Isometry3::identity()),
+                        max_correspondence_distance,
+                        max_iterations: 40,
+                        transformation_epsilon: 1e-9,
+                        batch_correspondences: batch,
+                        relative_mse: 0.0,
+                        reciprocal: false,
+                    },
+                )
+                .unwrap()
+        };
+        let (plain, batched) = (run(false), run(true));
+        assert!(plain.iterations > 3, "{plain:?}");
+        assert_eq!(
+            plain, batched,
+            "identical transform, iterations, fitness and stop reason at {max_correspondence_distance} mm"
+        );
+    }
+}
+
 fn fpfh_at(points: &[Point], keypoints: &[u32], viewpoint: Point) -> Vec<[f32; 33]> {
     let set = IndexedCloud::new(points)
         .unwrap()
