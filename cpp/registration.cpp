@@ -47,44 +47,19 @@ const BatchIndex& batch_index(const Cloud::Impl& cloud) {
 
 namespace {
 
-// Each point's nearest neighbour in `index` whose squared distance is at most `max_sqr`
-// (index -1 when there is none), in one FLANN call. A search bounded this way prunes every
-// branch farther away, where PCL's unbounded one first walks to whatever is nearest however
-// far; both keep the first of equally near points in the same tree order. FLANN's bound is
-// exclusive and in float: one float step wider, then PCL's inclusive test in double.
 struct Nearest {
   std::vector<int> index;
   std::vector<float> distance_sqr;
 };
 
-template <typename Points, typename Get>
-Nearest nearest_within(const BatchIndex& index, std::size_t n, const Points& points, Get get,
-                       double max_sqr) {
-  std::vector<float> queries(n * 3);
-  for (std::size_t i = 0; i < n; ++i) {
-    const pcl::PointXYZ& p = get(points, i);
-    queries[3 * i] = p.x;
-    queries[3 * i + 1] = p.y;
-    queries[3 * i + 2] = p.z;
-  }
-  Nearest out{std::vector<int>(n, -1), std::vector<float>(n)};
-  flann::Matrix<int> nn_mat(out.index.data(), n, 1);
-  flann::Matrix<float> d2_mat(out.distance_sqr.data(), n, 1);
-  const float bound =
-      std::nextafter(static_cast<float>(max_sqr), std::numeric_limits<float>::infinity());
-  flann::SearchParams params(-1, 0.0f);  // as pcl::KdTreeFLANN: exact, one core
-  params.max_neighbors = 1;
-  index.index->radiusSearch(flann::Matrix<float>(queries.data(), n, 3), nn_mat, d2_mat, bound,
-                            params);
-  for (std::size_t i = 0; i < n; ++i) {
-    if (out.index[i] >= 0 && !(out.distance_sqr[i] <= max_sqr)) out.index[i] = -1;
-  }
-  return out;
+// FLANN's radius bound is exclusive and in float: one float step wider than `max_sqr`, then
+// PCL's inclusive test in double.
+float exclusive_bound(double max_sqr) {
+  return std::nextafter(static_cast<float>(max_sqr), std::numeric_limits<float>::infinity());
 }
 
-// Each point's `k` nearest neighbours within the bound (FLANN's exclusive float `bound`, as
-// nearest_within), nearest first; index -1 where fewer lie within it. Entries k i to
-// k i + k - 1.
+// Each point's `k` nearest neighbours in `index` within the float `bound`, nearest first
+// (index -1 where fewer lie within it; entries k i to k i + k - 1), in one FLANN call.
 template <typename Points, typename Get>
 Nearest k_nearest_within(const BatchIndex& index, std::size_t n, const Points& points, Get get,
                          int k, float bound) {
@@ -99,10 +74,24 @@ Nearest k_nearest_within(const BatchIndex& index, std::size_t n, const Points& p
   if (n == 0) return out;
   flann::Matrix<int> nn_mat(out.index.data(), n, k);
   flann::Matrix<float> d2_mat(out.distance_sqr.data(), n, k);
-  flann::SearchParams params(-1, 0.0f);
+  flann::SearchParams params(-1, 0.0f);  // as pcl::KdTreeFLANN: exact, one core
   params.max_neighbors = k;
   index.index->radiusSearch(flann::Matrix<float>(queries.data(), n, 3), nn_mat, d2_mat, bound,
                             params);
+  return out;
+}
+
+// Each point's nearest neighbour in `index` whose squared distance is at most `max_sqr`
+// (index -1 when there is none), in one FLANN call. A search bounded this way prunes every
+// branch farther away, where PCL's unbounded one first walks to whatever is nearest however
+// far; both keep the first of equally near points in the same tree order.
+template <typename Points, typename Get>
+Nearest nearest_within(const BatchIndex& index, std::size_t n, const Points& points, Get get,
+                       double max_sqr) {
+  Nearest out = k_nearest_within(index, n, points, get, 1, exclusive_bound(max_sqr));
+  for (std::size_t i = 0; i < n; ++i) {
+    if (out.index[i] >= 0 && !(out.distance_sqr[i] <= max_sqr)) out.index[i] = -1;
+  }
   return out;
 }
 
@@ -145,8 +134,7 @@ class BatchCorrespondenceEstimation
     if (!initCompute()) return;
     const std::size_t n = indices_->size();
     const double max_sqr = max_distance * max_distance;
-    const float bound =
-        std::nextafter(static_cast<float>(max_sqr), std::numeric_limits<float>::infinity());
+    const float bound = exclusive_bound(max_sqr);
     if (anchors_.size() != n) anchors_.assign(n, Anchor{});
     std::vector<int> nearest(n, -1);
     std::vector<float> distance_sqr(n, 0.0f);
