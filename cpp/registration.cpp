@@ -293,8 +293,9 @@ class BatchCorrespondenceEstimation
 
  private:
   const BatchIndex* index_;
-  // Where a source point was last searched, its nearest point there and the distance of the
-  // second nearest (or of the bound, when none was within it).
+  // Where a source point was last searched, the ANCHOR_POINTS nearest target points there
+  // (fewer when fewer lay within the bound) and the reach: the distance of the last of them,
+  // or the bound's when fewer were found.
   struct Anchor {
     double x = 0.0, y = 0.0, z = 0.0;
     std::array<int, ANCHOR_POINTS> cached{};
