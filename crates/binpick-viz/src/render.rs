@@ -326,10 +326,10 @@ const LEGEND_NOTES: [&str; 3] = [
     "initial = coarse alignment score",
 ];
 
-/// The legend's notes when it shows the view check ([`crate::Seen`]).
 /// Dark red of the notices ("no detections", "no pick").
 const NOTICE_RED: [u8; 3] = [170, 20, 20];
 
+/// The legend's notes when it shows the view check ([`crate::Seen`]).
 const SEEN_NOTES: [&str; 3] = [
     "vis = % of its visible surface",
     "the scan confirms (higher = better)",
