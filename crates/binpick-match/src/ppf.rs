@@ -179,6 +179,10 @@ pub struct VotingConfig {
     /// A secondary peak is kept when it has at least this fraction of the reference point's
     /// best peak's votes. Default 0.6, range 0-1.
     pub secondary_peak_ratio: f64,
+    /// Of the scene pairs of one reference point that share a feature bin and a rotation
+    /// bin, only the first votes (Vidal et al. 2018): flat regions give many such pairs,
+    /// which vote alike and would outweigh the pairs that fix the pose. Default true.
+    pub distinct_pairs: bool,
 }
 
 impl Default for VotingConfig {
@@ -187,6 +191,7 @@ impl Default for VotingConfig {
             reference_stride: 2,
             peaks_per_reference: 3,
             secondary_peak_ratio: 0.6,
+            distinct_pairs: true,
         }
     }
 }
@@ -335,9 +340,11 @@ impl PpfModel {
                 // without a branch (a slot is appended always, kept only when new).
                 || {
                     let slots = n_model * n_alpha;
-                    (vec![0u32; slots], vec![0u32; slots + 1], Vec::new())
+                    let voted = std::collections::HashSet::<u64>::new();
+                    (vec![0u32; slots], vec![0u32; slots + 1], Vec::new(), voted)
                 },
-                |(acc, touched, neighbours), &r| {
+                |(acc, touched, neighbours, voted), &r| {
+                    voted.clear();
                     let mut n_touched = 0usize;
                     let (ps, ns) = (&scene.points[r], &scene.normals[r]);
                     let Some(frame) = Frame::new(ps, ns) else {
@@ -363,6 +370,13 @@ impl PpfModel {
                             continue;
                         }
                         let phi_s = frame.phi(&scene.points[k]);
+                        if config.distinct_pairs {
+                            // phi_s's own rotation bin (measured from -pi).
+                            let bin = alpha_bin(phi_s, -std::f32::consts::PI, per_radian, n_alpha);
+                            if !voted.insert(u64::from(key) * n_alpha as u64 + bin as u64) {
+                                continue;
+                            }
+                        }
                         for e in &self.entries[lo..hi] {
                             let a = alpha_bin(phi_s, e.phi, per_radian, n_alpha);
                             let slot = e.point as usize * n_alpha + a;
@@ -736,6 +750,7 @@ pub(crate) mod tests {
                 reference_stride: 1,
                 peaks_per_reference: 1 + trial % 5,
                 secondary_peak_ratio: [0.0, 0.6, 1.0][trial % 3],
+                ..VotingConfig::default()
             };
             let kept = table.peaks(&acc, &touched, &config, n_alpha);
             assert_eq!(
@@ -787,6 +802,66 @@ pub(crate) mod tests {
             .vote(&scene, &index, &VotingConfig::default())
             .unwrap();
         assert_eq!(votes, again);
+    }
+
+    /// The best peak's votes per reference point, in reference order.
+    fn best_votes(votes: &[Vote]) -> Vec<(u32, u32)> {
+        let mut best: Vec<(u32, u32)> = Vec::new();
+        for v in votes {
+            match best.last_mut() {
+                Some(b) if b.0 == v.reference => b.1 = b.1.max(v.votes),
+                _ => best.push((v.reference, v.votes)),
+            }
+        }
+        best
+    }
+
+    #[test]
+    fn a_scene_pair_repeated_votes_once_with_distinct_pairs() {
+        let model = l_part(3.0);
+        let table = PpfModel::new(&model, l_part_config()).unwrap();
+        let once = moved(&model, &pose([10.0, -5.0, 3.0], [0.3, 1.0, -0.2], 40.0));
+        // Every point twice: each scene pair then comes twice with the same feature and angle.
+        let twice = OrientedPoints {
+            points: [once.points.clone(), once.points.clone()].concat(),
+            normals: [once.normals.clone(), once.normals.clone()].concat(),
+        };
+        let vote = |scene: &OrientedPoints, distinct_pairs: bool| {
+            let index = PointIndex::new("scene", &scene.points).unwrap();
+            let config = VotingConfig {
+                reference_stride: 1,
+                distinct_pairs,
+                ..VotingConfig::default()
+            };
+            best_votes(&table.vote(scene, &index, &config).unwrap())
+        };
+        let n = once.len() as u32;
+        let first_copy = |v: Vec<(u32, u32)>| -> Vec<(u32, u32)> {
+            v.into_iter().filter(|&(r, _)| r < n).collect()
+        };
+        // Every pair voting: the copy doubles every count.
+        let all_once = vote(&once, false);
+        let all_twice = first_copy(vote(&twice, false));
+        assert_eq!(all_once.len(), all_twice.len());
+        for (a, b) in all_once.iter().zip(&all_twice) {
+            assert_eq!((a.0, 2 * a.1), *b);
+        }
+        // Distinct pairs only: the copy adds nothing, and flat regions' repeats are dropped
+        // even from the scene sampled once.
+        let distinct_twice = first_copy(vote(&twice, true));
+        let mut fewer = 0;
+        for (a, b) in all_once.iter().zip(&distinct_twice) {
+            assert_eq!(a.0, b.0);
+            assert!(
+                b.1 <= a.1,
+                "reference {}: {} votes against {}",
+                a.0,
+                b.1,
+                a.1
+            );
+            fewer += usize::from(b.1 < a.1);
+        }
+        assert!(fewer > all_once.len() / 2, "{fewer} of {}", all_once.len());
     }
 
     #[test]

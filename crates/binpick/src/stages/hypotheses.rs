@@ -538,6 +538,7 @@ fn vote_table(
                 reference_stride: cfg.reference_stride,
                 peaks_per_reference: cfg.peaks_per_reference,
                 secondary_peak_ratio: cfg.secondary_peak_ratio,
+                distinct_pairs: cfg.distinct_pairs,
             },
         )
         .map_err(matching("voting"))?;
