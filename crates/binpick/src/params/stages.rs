@@ -454,7 +454,8 @@ stage_config! {
         secondary_peak_ratio: f64 = 0.6, within(0.0, 1.0, "");
         /// Of one reference point's scene pairs that share a feature bin and a rotation bin,
         /// only the first votes (Vidal et al. 2018; flat regions give many that vote alike).
-        distinct_pairs: bool = true, any();
+        /// A quarter off the voting; off by default (README, Results, "Twenty-sixth pass").
+        distinct_pairs: bool = false, any();
         /// Votes whose poses move the model's centre less than this, in diameters ...
         cluster_translation_diameters: f64 = 0.1, positive(1.0, "x diameter");
         /// ... and rotate it less than this (up to symmetry) are one hypothesis, deg.
