@@ -858,8 +858,8 @@ pub(crate) mod tests {
         for (a, b) in all_once.iter().zip(&all_twice) {
             assert_eq!((a.0, 2 * a.1), *b);
         }
-        // Distinct pairs only: the copy adds nothing, and flat regions' repeats are dropped
-        // even from the scene sampled once.
+        // Distinct pairs only: the scene twice over votes no more than every pair of the
+        // scene once, and less for most references (flat regions' repeats are dropped).
         let distinct_twice = first_copy(vote(&twice, true));
         let mut fewer = 0;
         for (a, b) in all_once.iter().zip(&distinct_twice) {
