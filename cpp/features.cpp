@@ -74,6 +74,19 @@ rust::Vec<float> estimate_normals_at(rust::Slice<const float> xyz,
   return flatten_normals(*normals_for(cloud, make_tree(cloud), radius, vp, threads, indices));
 }
 
+// estimate_normals_at over an uploaded cloud, searching the kd-tree built on upload: the
+// tree estimate_normals_at would build (make_tree over the same points), so the same normals.
+rust::Vec<float> cloud_normals_at(const Cloud& cloud, rust::Slice<const std::uint32_t> at,
+                                  float radius, rust::Slice<const float> viewpoint,
+                                  std::uint32_t threads) {
+  check_positive(radius, "normal radius");
+  const auto vp = read_viewpoint(viewpoint);
+  const auto& s = cloud.impl();
+  auto indices = std::make_shared<pcl::Indices>(to_indices(at, s.points->size(), "normal points"));
+  if (indices->empty()) return {};
+  return flatten_normals(*normals_for(s.points, s.tree, radius, vp, threads, indices));
+}
+
 // FPFH (pcl::FPFHEstimationOMP) at `keypoints` (indices into `surface`), with the whole
 // surface as search surface: normals are estimated on the surface at `normal_radius`
 // (thesis: 0.8 x feature radius), then the descriptor at `feature_radius`. The surface's

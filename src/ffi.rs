@@ -258,6 +258,13 @@ pub(crate) mod bridge {
             viewpoint: &[f32],
             threads: u32,
         ) -> Result<Vec<f32>>;
+        fn cloud_normals_at(
+            cloud: &Cloud,
+            at: &[u32],
+            radius: f32,
+            viewpoint: &[f32],
+            threads: u32,
+        ) -> Result<Vec<f32>>;
         fn cloud_fpfh(
             surface: &Cloud,
             keypoints: &[u32],

@@ -532,6 +532,21 @@ impl IndexedCloud {
         bridge::nearest_sq_distances(self.cloud(), flat(query)).map_err(pcl_err("KdTree"))
     }
 
+    /// [`estimate_normals_at`] of this cloud's points `at`, searched with the kd-tree built on
+    /// upload (the one `estimate_normals_at` would build): the same normals, and the tree can
+    /// be built ahead, while something else runs.
+    pub fn normals_at(
+        &self,
+        at: &[u32],
+        radius: f32,
+        viewpoint: Point,
+        threads: u32,
+    ) -> Result<Vec<Normal>> {
+        let v = bridge::cloud_normals_at(self.cloud(), at, radius, &viewpoint, threads)
+            .map_err(pcl_err("NormalEstimationOMP"))?;
+        Ok(unflatten_normals(&v))
+    }
+
     /// FPFH at `keypoints` (indices into this cloud), with the whole cloud as search surface:
     /// normals at `normal_radius`, descriptors at `feature_radius` (thesis 3.3.2).
     pub fn fpfh(&self, keypoints: &[u32], params: &FpfhParams) -> Result<FpfhSet> {

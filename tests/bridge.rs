@@ -659,8 +659,22 @@ fn normals_at_some_points_are_the_normals_of_all_at_those_points() {
     let shape = bracket();
     let all = estimate_normals(&shape, 3.0, [30.0, 20.0, 500.0], 2).unwrap();
     let at: Vec<u32> = (0..shape.len() as u32).rev().step_by(7).collect();
+    // The same from a cloud uploaded once, searched with its own kd-tree.
+    let uploaded = IndexedCloud::new(&shape).unwrap();
     for threads in [1, 2] {
         let some = estimate_normals_at(&shape, &at, 3.0, [30.0, 20.0, 500.0], threads).unwrap();
+        let from_upload = uploaded
+            .normals_at(&at, 3.0, [30.0, 20.0, 500.0], threads)
+            .unwrap();
+        let bits = |v: &[binpick_pcl::Normal]| -> Vec<[u32; 4]> {
+            v.iter()
+                .map(|n| {
+                    let [x, y, z] = n.normal.map(f32::to_bits);
+                    [x, y, z, n.curvature.to_bits()]
+                })
+                .collect()
+        };
+        assert_eq!(bits(&some), bits(&from_upload), "{threads} thread(s)");
         assert_eq!(some.len(), at.len());
         for (&i, n) in at.iter().zip(&some) {
             let want = &all[i as usize];
@@ -681,6 +695,12 @@ fn normals_at_some_points_are_the_normals_of_all_at_those_points() {
         .unwrap_err()
         .to_string();
     assert!(err.contains("out of range"), "{err}");
+    let err = uploaded
+        .normals_at(&[shape.len() as u32], 3.0, [0.0, 0.0, 1.0], 1)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("out of range"), "{err}");
+    assert!(uploaded.normals_at(&at, 0.0, [0.0, 0.0, 1.0], 1).is_err());
 }
 
 #[test]

@@ -61,6 +61,9 @@ rust::Vec<float> estimate_normals(rust::Slice<const float> xyz, float radius,
 rust::Vec<float> estimate_normals_at(rust::Slice<const float> xyz,
                                      rust::Slice<const std::uint32_t> at, float radius,
                                      rust::Slice<const float> viewpoint, std::uint32_t threads);
+rust::Vec<float> cloud_normals_at(const Cloud& cloud, rust::Slice<const std::uint32_t> at,
+                                  float radius, rust::Slice<const float> viewpoint,
+                                  std::uint32_t threads);
 Features cloud_fpfh(const Cloud& surface, rust::Slice<const std::uint32_t> keypoints,
                     float feature_radius, float normal_radius, rust::Slice<const float> viewpoint,
                     std::uint32_t threads);

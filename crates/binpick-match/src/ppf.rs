@@ -23,17 +23,15 @@ use crate::{MatchError, OrientedPoints, P3};
 pub struct PpfConfig {
     /// Distance quantisation step, mm: the sampling step of model and scene. Range > 0.
     pub distance_step_mm: f64,
-    /// Bins of each feature angle over [0, 180] deg. Default 15 (12 deg bins, as Drost).
-    /// Range 4-90.
+    /// Bins of each feature angle over [0, 180] deg (Drost: 15, 12 deg bins). Range 4-90.
     pub feature_angle_bins: u32,
-    /// Bins of the rotation about the normal over a full turn. Default 30 (12 deg, as Drost).
-    /// Range 4-360.
+    /// Bins of the rotation about the normal over a full turn (Drost: 30, 12 deg). Range
+    /// 4-360.
     pub alpha_bins: u32,
     /// Longest pair, mm (the model's diameter: longer pairs cannot lie on one part). Range > 0.
     pub max_pair_distance_mm: f64,
     /// A model pair is also filed under a neighbouring bin when its feature lies within this
-    /// fraction of a bin of the edge (Vidal's neighbour voting). Default 0.25, range 0-0.5
-    /// (0 = off).
+    /// fraction of a bin of the edge (Vidal's neighbour voting). Range 0-0.5 (0 = off).
     pub spread: f64,
     /// Most pairs kept per feature bin, evenly chosen. Bins of flat regions (two coplanar
     /// normals at right angles to the pair) hold thousands of pairs that all vote alike and
@@ -167,33 +165,23 @@ pub struct Vote {
     pub reference: u32,
 }
 
-/// How the scene is searched.
+/// How the scene is searched. No defaults here: binpick's `params::VotingConfig` holds them
+/// (one source), with the table's.
 #[derive(Clone, Debug, PartialEq)]
 pub struct VotingConfig {
-    /// Every `reference_stride`-th scene point is a reference point. Default 2 (Drost: 5;
-    /// piles need more to find every part). Range 1-100.
+    /// Every `reference_stride`-th scene point is a reference point (Drost: 5; piles need
+    /// more to find every part). Range 1-100.
     pub reference_stride: usize,
     /// Peaks kept per reference point (a reference point on a part touching another can
-    /// carry both). Default 3, range 1-20.
+    /// carry both). Range 1-20.
     pub peaks_per_reference: usize,
     /// A secondary peak is kept when it has at least this fraction of the reference point's
-    /// best peak's votes. Default 0.6, range 0-1.
+    /// best peak's votes. Range 0-1.
     pub secondary_peak_ratio: f64,
     /// Of the scene pairs of one reference point that share a feature bin and a rotation
     /// bin, only the first votes (Vidal et al. 2018): flat regions give many such pairs,
-    /// which vote alike. Default false (README, Results, "Twenty-sixth pass").
+    /// which vote alike.
     pub distinct_pairs: bool,
-}
-
-impl Default for VotingConfig {
-    fn default() -> Self {
-        Self {
-            reference_stride: 2,
-            peaks_per_reference: 3,
-            secondary_peak_ratio: 0.6,
-            distinct_pairs: false,
-        }
-    }
 }
 
 impl VotingConfig {
@@ -694,6 +682,16 @@ pub(crate) mod tests {
         }
     }
 
+    /// The scene search of these tests: every other point a reference, three peaks each.
+    fn search() -> VotingConfig {
+        VotingConfig {
+            reference_stride: 2,
+            peaks_per_reference: 3,
+            secondary_peak_ratio: 0.6,
+            distinct_pairs: false,
+        }
+    }
+
     /// A small deterministic generator (xorshift32): `next(m)` is in `0..m`.
     pub(crate) fn xorshift(seed: u32) -> impl FnMut(u32) -> u32 {
         let mut state = seed;
@@ -750,7 +748,7 @@ pub(crate) mod tests {
                 reference_stride: 1,
                 peaks_per_reference: 1 + trial % 5,
                 secondary_peak_ratio: [0.0, 0.6, 1.0][trial % 3],
-                ..VotingConfig::default()
+                distinct_pairs: false,
             };
             let kept = table.peaks(&acc, &touched, &config, n_alpha);
             assert_eq!(
@@ -779,7 +777,7 @@ pub(crate) mod tests {
         for distinct_pairs in [false, true] {
             let config = VotingConfig {
                 distinct_pairs,
-                ..VotingConfig::default()
+                ..search()
             };
             two_instances_voted(&table, &scene, &index, &config, [t1, t2]);
         }
@@ -843,7 +841,7 @@ pub(crate) mod tests {
             let config = VotingConfig {
                 reference_stride: 1,
                 distinct_pairs,
-                ..VotingConfig::default()
+                ..search()
             };
             best_votes(&table.vote(scene, &index, &config).unwrap())
         };

@@ -82,6 +82,17 @@ fn ppf_config(part: &Part, scale: &DerivedScale) -> PpfConfig {
     }
 }
 
+/// The default `[voting]` scene search.
+fn search_config() -> VotingConfig {
+    let v = Params::default().voting;
+    VotingConfig {
+        reference_stride: v.reference_stride,
+        peaks_per_reference: v.peaks_per_reference,
+        secondary_peak_ratio: v.secondary_peak_ratio,
+        distinct_pairs: v.distinct_pairs,
+    }
+}
+
 fn oriented(points: &[[f32; 3]], radius_mm: f64) -> OrientedPoints {
     let normals = binpick_pcl::estimate_normals(points, radius_mm as f32, [0.0, 0.0, 1e7], 0)
         .expect("normals");
@@ -157,6 +168,31 @@ fn stages(c: &mut Criterion) {
     g.bench_function("normals", |b| {
         b.iter(|| oriented(black_box(&voxels), scale.normal_radius_mm))
     });
+    // The scan's spacing (8th-nearest distinct neighbour of 2000 points): the grid the engine
+    // uses against the kd-tree it replaced, same answers.
+    let queries: Vec<[f32; 3]> = {
+        let step = (s.scene.len() / 2000).max(1);
+        s.scene.points.iter().step_by(step).copied().collect()
+    };
+    g.bench_function("spacing_grid", |b| {
+        b.iter(|| {
+            binpick_match::index::kth_nearest_distinct_on_grid(
+                black_box(&s.scene.points),
+                &queries,
+                8,
+            )
+            .expect("grid")
+        })
+    });
+    g.bench_function("spacing_kd_tree", |b| {
+        b.iter(|| {
+            let index = PointIndex::new("scene", black_box(&s.scene.points)).expect("index");
+            queries
+                .iter()
+                .map(|q| index.kth_nearest_distinct(q, 8))
+                .collect::<Vec<_>>()
+        })
+    });
     g.finish();
 
     let model_samples = subsample_by_facing(&dense, scale.sampling_step_mm);
@@ -167,7 +203,7 @@ fn stages(c: &mut Criterion) {
     g.bench_function("vote", |b| {
         b.iter(|| {
             table
-                .vote(&samples, &index, &VotingConfig::default())
+                .vote(&samples, &index, &search_config())
                 .expect("votes")
         })
     });

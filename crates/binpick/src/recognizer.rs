@@ -20,7 +20,7 @@ use binpick_cloud::{PointCloud, Units};
 
 use crate::deadline::{CancelToken, Deadline, ms};
 use crate::engines::cluster_search::{ClusterSearch, Found};
-use crate::engines::scene_voting::SceneVoting;
+use crate::engines::scene_voting::{SceneIndexes, SceneVoting};
 use crate::error::{Error, Result};
 use crate::frames::OutputFrame;
 use crate::grasp::{GraspScene, check_and_order};
@@ -36,8 +36,8 @@ use crate::stages::hypotheses::VotingModel;
 use crate::stages::model::PreparedModel;
 use crate::stages::part::Part;
 use crate::stages::preprocess::{
-    SupportSize, bounds, check_units, clean_scene, label_support_noise, preprocess,
-    voxelise_keeping_support,
+    SupportSize, bounds, check_units, clean_scene, label_support_noise, preprocess, support_of,
+    voxelise,
 };
 use crate::stages::rank::{rank_by_view, rank_detections, suppress_duplicates};
 use crate::stages::scale::measure_spacing;
@@ -51,8 +51,10 @@ struct PreparedScene {
     points: Vec<binpick_cloud::Point>,
     /// ... and which of them are support ...
     support: Vec<bool>,
-    /// ... and the support planes, `a x + b y + c z + d = 0` (mm).
+    /// ... and the support planes, `a x + b y + c z + d = 0` (mm) ...
     planes: Vec<[f64; 4]>,
+    /// ... and the search indexes over the points.
+    indexes: SceneIndexes,
 }
 
 /// What one call runs with: its stage configs (the recognizer's, with the call's options),
@@ -504,6 +506,7 @@ impl Recognizer {
             points,
             support,
             planes,
+            indexes,
         } = {
             let _span = tracing::info_span!("preprocessing").entered();
             self.prepare_scene(scene, call, preprocessed, scale_out)?
@@ -528,7 +531,7 @@ impl Recognizer {
             threads: call.threads,
             support_planes: &planes,
         };
-        engine.detect(&points, &support)
+        engine.detect(&points, &support, indexes)
     }
 
     /// Crop, strays, units; the scan's spacing and every length derived from it and the
@@ -550,18 +553,27 @@ impl Recognizer {
         let mut pre = p.preprocess.clone();
         pre.resolution_mm = Some(scale.resolution_mm);
         pre.support.distance_mm = Some(scale.support_distance_mm);
-        let (points, mut support) = voxelise_keeping_support(
-            &cleaned,
-            &pre,
-            scale.connect_mm,
-            SupportSize::Area {
-                view_area_mm2: scale.part_view_area_mm2,
-                curved: scale.part_curvature_radius_mm.is_some(),
+        let points = voxelise(&cleaned, &pre, call.deadline, preprocessed)?;
+        drop(cleaned);
+        // The scene's search indexes do not depend on the support: built meanwhile.
+        let (support, indexes) = rayon::join(
+            || {
+                support_of(
+                    &points,
+                    &pre,
+                    scale.connect_mm,
+                    SupportSize::Area {
+                        view_area_mm2: scale.part_view_area_mm2,
+                        curved: scale.part_curvature_radius_mm.is_some(),
+                    },
+                    call.threads,
+                    call.deadline,
+                    preprocessed,
+                )
             },
-            call.threads,
-            call.deadline,
-            preprocessed,
-        )?;
+            || SceneIndexes::build(&points),
+        );
+        let (mut support, indexes) = (support?, indexes?);
         let noise = preprocessed.support_planes.first().and_then(|p| p.rms_mm);
         let planes: Vec<[f64; 4]> = preprocessed
             .support_planes
@@ -589,6 +601,7 @@ impl Recognizer {
             points,
             support,
             planes,
+            indexes,
         })
     }
 
@@ -667,7 +680,13 @@ impl Recognizer {
                 threads,
                 support_planes: &prepared.planes,
             };
-            engine.check(&prepared.points, &prepared.support, poses, refine)
+            engine.check(
+                &prepared.points,
+                &prepared.support,
+                &prepared.indexes,
+                poses,
+                refine,
+            )
         })
     }
 

@@ -21,10 +21,12 @@ use nalgebra::Isometry3;
 use rayon::prelude::*;
 
 use binpick_cloud::Point;
-use binpick_match::{ExplainConfig, OrientedPoints, Rejection, Sensor, ViewScore, explain_scene};
+use binpick_match::{
+    ExplainConfig, OrientedPoints, PointIndex, Rejection, Sensor, ViewScore, explain_scene,
+};
 
 use crate::deadline::{Deadline, ms};
-use crate::error::Result;
+use crate::error::{Result, pcl};
 use crate::params::Params;
 use crate::result::{
     CandidateRecord, DerivedScale, Detection, FoundBy, IcpReport, PoseCheck, RefusedCandidate,
@@ -44,6 +46,28 @@ use crate::stages::verify::{
 /// A scene sample is explained by a taken part within this many view tolerances of its
 /// surface (later voting rounds skip it).
 const UNEXPLAINED_TOLERANCES: f64 = 2.0;
+
+/// The two search indexes over the preprocessed scene, support included: PCL's kd-tree
+/// (its normals) and the view normals' (kiddo). Neither depends on which points are support,
+/// so they are built while the support is searched.
+pub(crate) struct SceneIndexes {
+    pub pcl: binpick_pcl::IndexedCloud,
+    pub view: PointIndex,
+}
+
+impl SceneIndexes {
+    /// Both indexes over `points`, side by side (each is built on one core).
+    pub(crate) fn build(points: &[Point]) -> Result<Self> {
+        let (pcl, view) = rayon::join(
+            || binpick_pcl::IndexedCloud::new(points).map_err(pcl("scene kd-tree")),
+            || view_normals_index(points),
+        );
+        Ok(Self {
+            pcl: pcl?,
+            view: view?,
+        })
+    }
+}
 
 /// What the engine found in the scene.
 pub(crate) struct VotingFound {
@@ -85,11 +109,12 @@ struct Candidate {
 
 impl SceneVoting<'_> {
     /// The sensor and the scene's surface with normals: `points` is the preprocessed scene,
-    /// `support[i]` says point i is belt, floor or wall.
+    /// `support[i]` says point i is belt, floor or wall, `indexes` are over `points`.
     pub(crate) fn surface(
         &self,
         points: &[Point],
         support: &[bool],
+        indexes: &SceneIndexes,
     ) -> Result<(Sensor, SceneSurface)> {
         let p = self.params;
         let sensor = resolve_sensor(&p.verify.sensor, p.ranking.up, points)?;
@@ -112,24 +137,18 @@ impl SceneVoting<'_> {
             .map(|(c, b)| (*c, b.is_some()))
             .collect();
         let towards = viewpoint(&sensor, points);
-        // PCL's normals and the view normals' index (each built on one core) side by side.
-        let (normals, index) = rayon::join(
-            || {
-                scene_normals(
-                    points,
-                    support,
-                    &planes,
-                    self.scale,
-                    towards,
-                    self.threads as u32,
-                )
-            },
-            || view_normals_index(points),
-        );
-        let normals = normals?;
+        let normals = scene_normals(
+            points,
+            &indexes.pcl,
+            support,
+            &planes,
+            self.scale,
+            towards,
+            self.threads as u32,
+        )?;
         let view_normals = view_normals(
             points,
-            &index?,
+            &indexes.view,
             support,
             &normals,
             self.scale.normal_radius_mm,
@@ -153,10 +172,11 @@ impl SceneVoting<'_> {
         &self,
         points: &[Point],
         support: &[bool],
+        indexes: &SceneIndexes,
         poses: &[Isometry3<f64>],
         refine: bool,
     ) -> Result<Vec<PoseCheck>> {
-        let (sensor, surface) = self.surface(points, support)?;
+        let (sensor, surface) = self.surface(points, support, indexes)?;
         let verifier = Verifier::new(
             sensor,
             &surface,
@@ -227,11 +247,18 @@ impl SceneVoting<'_> {
         })
     }
 
-    /// `points`: the preprocessed scene; `support[i]`: point i is belt, floor or wall.
-    pub(crate) fn detect(&self, points: &[Point], support: &[bool]) -> Result<VotingFound> {
+    /// `points`: the preprocessed scene; `support[i]`: point i is belt, floor or wall;
+    /// `indexes` over `points` (dropped once the normals are known: a belt's are tens of MB).
+    pub(crate) fn detect(
+        &self,
+        points: &[Point],
+        support: &[bool],
+        indexes: SceneIndexes,
+    ) -> Result<VotingFound> {
         let p = self.params;
         let lap = Instant::now();
-        let (sensor, mut surface) = self.surface(points, support)?;
+        let (sensor, mut surface) = self.surface(points, support, &indexes)?;
+        drop(indexes);
         let mut report = VotingReport {
             sensor: describe(&sensor),
             ..VotingReport::default()

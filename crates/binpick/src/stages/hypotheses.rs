@@ -177,9 +177,11 @@ pub(crate) fn subsample(points: &OrientedPoints, leaf: f64) -> Result<OrientedPo
 /// unit normal; with `true` where the plane bounds the parts) bounds the parts: those take
 /// the plane's normal. A belt is most of its scan and its plane is known, so estimating its
 /// normals would cost most of this stage for nothing; a plane that does not bound the parts
-/// may have been laid across their tops, where the surface is not the plane.
+/// may have been laid across their tops, where the surface is not the plane. `cloud` is
+/// `points` uploaded to PCL (its kd-tree is the one searched).
 pub(crate) fn scene_normals(
     points: &[Point],
+    cloud: &binpick_pcl::IndexedCloud,
     support: &[bool],
     planes: &[([f64; 4], bool)],
     scale: &DerivedScale,
@@ -208,14 +210,14 @@ pub(crate) fn scene_normals(
     let estimate: Vec<u32> = (0..points.len() as u32)
         .filter(|&i| normals[i as usize].is_none())
         .collect();
-    let estimated = binpick_pcl::estimate_normals_at(
-        points,
-        &estimate,
-        scale.normal_radius_mm as f32,
-        viewpoint.map(|c| c as f32),
-        threads,
-    )
-    .map_err(pcl("scene normals"))?;
+    let estimated = cloud
+        .normals_at(
+            &estimate,
+            scale.normal_radius_mm as f32,
+            viewpoint.map(|c| c as f32),
+            threads,
+        )
+        .map_err(pcl("scene normals"))?;
     for (&i, n) in estimate.iter().zip(&estimated) {
         normals[i as usize] = Some(n.normal);
     }
@@ -613,9 +615,13 @@ mod tests {
         };
         let scale = DerivedScale::derive(&part, None, &Params::default()).unwrap();
         let above = [30.0, 30.0, 1e6];
-        let both = scene_normals(&points, &support, &[(plane, true)], &scale, above, 2).unwrap();
+        let cloud = binpick_pcl::IndexedCloud::new(&points).unwrap();
+        let normals = |planes: &[([f64; 4], bool)], threads| {
+            scene_normals(&points, &cloud, &support, planes, &scale, above, threads).unwrap()
+        };
+        let both = normals(&[(plane, true)], 2);
         let flipped = plane.map(|c| -c);
-        let other = scene_normals(&points, &support, &[(flipped, true)], &scale, above, 1).unwrap();
+        let other = normals(&[(flipped, true)], 1);
         let estimated = binpick_pcl::estimate_normals(
             &points,
             scale.normal_radius_mm as f32,
@@ -641,7 +647,7 @@ mod tests {
             }
         }
         // A plane that does not bound the parts leaves its points to PCL.
-        let kept = scene_normals(&points, &support, &[(plane, false)], &scale, above, 2).unwrap();
+        let kept = normals(&[(plane, false)], 2);
         for (k, e) in kept.iter().zip(&estimated) {
             assert_eq!(k.map(f32::to_bits), e.normal.map(f32::to_bits));
         }

@@ -29,6 +29,7 @@
 use serde::{Deserialize, Serialize};
 
 use binpick_cloud::Point;
+use binpick_match::index::kth_nearest_distinct_on_grid;
 use binpick_match::{OrientedPoints, PointIndex};
 
 use crate::error::{InputKind, Result, input_as};
@@ -59,16 +60,14 @@ pub fn measure_spacing(points: &[Point]) -> Result<Option<Spacing>> {
     if points.len() <= SPACING_NEIGHBOUR {
         return Ok(None);
     }
-    let index = PointIndex::new("cloud", points)
-        .map_err(|e| input_as("cloud", InputKind::Degenerate, e.to_string()))?;
     let step = (points.len() / SPACING_SAMPLES).max(1);
-    let mut gaps: Vec<f64> = Vec::with_capacity(SPACING_SAMPLES);
-    for p in points.iter().step_by(step) {
-        let d = index.kth_nearest_distinct(p, SPACING_NEIGHBOUR);
-        if let Some(d) = d {
-            gaps.push(f64::from(d));
-        }
-    }
+    let sample: Vec<Point> = points.iter().step_by(step).copied().collect();
+    let mut gaps: Vec<f64> = kth_nearest_distinct_on_grid(points, &sample, SPACING_NEIGHBOUR)
+        .map_err(|e| input_as("cloud", InputKind::Degenerate, e.to_string()))?
+        .into_iter()
+        .flatten()
+        .map(f64::from)
+        .collect();
     if gaps.is_empty() {
         return Ok(None);
     }
