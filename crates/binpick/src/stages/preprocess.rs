@@ -332,7 +332,8 @@ impl DenseCells {
             }
         }
         let spans = [0, 1, 2].map(|a| span(lo[a], hi[a]));
-        let cells = spans.iter().product::<i128>();
+        // Checked: three spans of saturated cells (points near 1e30) overflow even i128.
+        let cells = spans.iter().try_fold(1i128, |n, &s| n.checked_mul(s))?;
         if cells > DENSE_CELLS_PER_POINT * (points.len() as i128 + 1024) {
             return None;
         }
@@ -748,8 +749,9 @@ impl CellIds {
         let (lo, hi) = cells.iter().fold((first, first), |(lo, hi), &(a, b)| {
             ((lo.0.min(a), lo.1.min(b)), (hi.0.max(a), hi.1.max(b)))
         });
-        let area = span(lo.0, hi.0) * span(lo.1, hi.1);
-        if area <= DENSE_CELLS_PER_POINT * (cells.len() as i128 + 1024) {
+        // Checked: two spans of saturated cells overflow i128.
+        let area = span(lo.0, hi.0).checked_mul(span(lo.1, hi.1));
+        if area.is_some_and(|a| a <= DENSE_CELLS_PER_POINT * (cells.len() as i128 + 1024)) {
             Self::dense(cells, lo, hi)
         } else {
             Self::sparse(cells)
@@ -809,6 +811,16 @@ impl CellIds {
 mod tests {
     use super::*;
 
+    /// A small deterministic generator (xorshift32).
+    fn xorshift32(mut state: u32) -> impl FnMut() -> u32 {
+        move || {
+            state ^= state << 13;
+            state ^= state >> 17;
+            state ^= state << 5;
+            state
+        }
+    }
+
     #[test]
     fn floor_to_i64_is_floor_as_i64() {
         let mut xs = vec![
@@ -836,13 +848,8 @@ mod tests {
     /// point by point: kept when its block of 27 cells holds `min_neighbours` others.
     #[test]
     fn strays_are_dropped_by_their_block_in_any_point_order() {
-        let mut state = 11u32;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 17;
-            state ^= state << 5;
-            f64::from(state % 10_000) / 10_000.0
-        };
+        let mut bits = xorshift32(11);
+        let mut next = move || f64::from(bits() % 10_000) / 10_000.0;
         let radius = 5.0;
         // A dense strip scanned line by line, strays between its lines, a pair of strays.
         let mut points: Vec<Point> = Vec::new();
@@ -865,8 +872,13 @@ mod tests {
             keyed.sort_by(|a, b| a.0.total_cmp(&b.0));
             keyed.into_iter().map(|(_, p)| p).collect()
         };
-        // A point near 1e30 makes the cells' box too large for an array: the hash map counts.
-        let far: Vec<Point> = points.iter().copied().chain([[1e30, 0.0, 0.0]]).collect();
+        // Points near 1e30 make the cells' box too large for an array (its cell count too
+        // large even for i128): the hash map counts.
+        let far: Vec<Point> = points
+            .iter()
+            .copied()
+            .chain([[1e30, 1e30, 1e30], [-1e30, -1e30, -1e30]])
+            .collect();
         let cell_of = |p: &Point| p.map(|c| (f64::from(c) / radius).floor() as i64);
         assert!(DenseCells::over(&points, &cell_of).is_some());
         assert!(DenseCells::over(&far, &cell_of).is_none());
@@ -887,25 +899,31 @@ mod tests {
                 .collect();
             let kept = drop_isolated(cloud, radius, 5, &deadline).unwrap();
             assert_eq!(kept, expected, "{order}");
-            let far_one = usize::from(order == "far");
+            let far_ones = 2 * usize::from(order == "far");
             assert_eq!(
                 cloud.len() - kept.len(),
-                12 + far_one,
-                "{order}: 5 lone strays, the pair and the five (and the far point)"
+                12 + far_ones,
+                "{order}: 5 lone strays, the pair and the five (and the far points)"
             );
             assert!(kept.contains(&[50.5, 10.0, 0.0]), "{order}");
         }
     }
 
+    /// Cells at both ends of i64 (points near 1e30 on a plane) span more cells than i128
+    /// holds: numbered in the map.
+    #[test]
+    fn cells_at_the_ends_of_i64_are_numbered_in_the_map() {
+        let cells = [(i64::MIN, i64::MIN), (0, 0), (i64::MAX, i64::MAX), (0, 0)];
+        let (ids, numbers, distinct) = CellIds::number(&cells);
+        assert!(matches!(ids, CellIds::Sparse(_)));
+        assert_eq!(numbers, vec![0, 1, 2, 1]);
+        assert_eq!(distinct, cells[..3].to_vec());
+        assert_eq!(ids.get((i64::MAX, i64::MAX)), Some(2));
+    }
+
     #[test]
     fn cells_are_numbered_alike_in_the_array_and_the_map() {
-        let mut state = 7u32;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 17;
-            state ^= state << 5;
-            state
-        };
+        let mut next = xorshift32(7);
         let cells: Vec<(i64, i64)> = (0..2000)
             .map(|_| {
                 (
