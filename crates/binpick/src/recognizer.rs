@@ -555,7 +555,8 @@ impl Recognizer {
         pre.support.distance_mm = Some(scale.support_distance_mm);
         let points = voxelise(&cleaned, &pre, call.deadline, preprocessed)?;
         drop(cleaned);
-        // The scene's search indexes do not depend on the support: built meanwhile.
+        // The scene's search indexes do not depend on the support: built meanwhile (on the
+        // lease's pool, whose every worker carries the call's interrupt: `Lease::run`).
         let (support, indexes) = rayon::join(
             || {
                 support_of(

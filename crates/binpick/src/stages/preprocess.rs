@@ -188,15 +188,9 @@ pub(crate) fn preprocess(
     report: &mut PreprocessReport,
 ) -> Result<Vec<Point>> {
     let cleaned = clean_scene(scene, cfg, deadline, report)?;
-    let (points, support) = voxelise_keeping_support(
-        &cleaned,
-        cfg,
-        tolerance_mm,
-        SupportSize::Points(model_points),
-        threads,
-        deadline,
-        report,
-    )?;
+    let points = voxelise(&cleaned, cfg, deadline, report)?;
+    let part = SupportSize::Points(model_points);
+    let support = support_of(&points, cfg, tolerance_mm, part, threads, deadline, report)?;
     Ok(points
         .into_iter()
         .zip(support)
@@ -204,25 +198,7 @@ pub(crate) fn preprocess(
         .collect())
 }
 
-/// The voxel grid and support search of [`preprocess`] on points [`clean_scene`] returned,
-/// keeping the support: every voxelised point, with a flag per point that says whether it
-/// was removed as support (belt, floor, wall). The scene-voting engine needs the support to
-/// know what the sensor saw behind the parts.
-pub(crate) fn voxelise_keeping_support(
-    cleaned: &[Point],
-    cfg: &PreprocessConfig,
-    tolerance_mm: f64,
-    part: SupportSize,
-    threads: usize,
-    deadline: &Deadline,
-    report: &mut PreprocessReport,
-) -> Result<(Vec<Point>, Vec<bool>)> {
-    let points = voxelise(cleaned, cfg, deadline, report)?;
-    let support = support_of(&points, cfg, tolerance_mm, part, threads, deadline, report)?;
-    Ok((points, support))
-}
-
-/// The voxel grid of [`voxelise_keeping_support`].
+/// The voxel grid of [`preprocess`] on points [`clean_scene`] returned.
 pub(crate) fn voxelise(
     cleaned: &[Point],
     cfg: &PreprocessConfig,
@@ -236,7 +212,9 @@ pub(crate) fn voxelise(
     Ok(points)
 }
 
-/// The support search of [`voxelise_keeping_support`] on the voxelised `points`.
+/// The support search of [`preprocess`] on the voxelised `points`: a flag per point that
+/// says whether it is support (belt, floor, wall). The scene-voting engine keeps the support
+/// to know what the sensor saw behind the parts.
 pub(crate) fn support_of(
     points: &[Point],
     cfg: &PreprocessConfig,
