@@ -130,6 +130,19 @@ pub fn kth_nearest_distinct_on_grid(
         .collect())
 }
 
+/// Per-axis minimum and maximum of `points` (infinite for none).
+pub fn bounds(points: &[P3]) -> ([f64; 3], [f64; 3]) {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for p in points {
+        for a in 0..3 {
+            lo[a] = lo[a].min(f64::from(p[a]));
+            hi[a] = hi[a].max(f64::from(p[a]));
+        }
+    }
+    (lo, hi)
+}
+
 /// Points sorted into the cells of a uniform grid over their bounding box (a counting sort:
 /// `order[start[c]..start[c + 1]]` are the points of cell `c`).
 struct Grid {
@@ -144,14 +157,7 @@ impl Grid {
     /// About one cell per point over the box's volume (a scan is a surface, so its occupied
     /// cells hold tens of points); thin boxes are widened to a thousandth of their extent.
     fn new(points: &[P3]) -> Self {
-        let mut lo = [f64::INFINITY; 3];
-        let mut hi = [f64::NEG_INFINITY; 3];
-        for p in points {
-            for a in 0..3 {
-                lo[a] = lo[a].min(f64::from(p[a]));
-                hi[a] = hi[a].max(f64::from(p[a]));
-            }
-        }
+        let (lo, hi) = bounds(points);
         let extent = [0, 1, 2].map(|a| hi[a] - lo[a]);
         let largest = extent.iter().copied().fold(0.0, f64::max);
         let floor = (largest * 1e-3).max(1e-6);

@@ -85,17 +85,7 @@ pub(crate) enum SupportSize {
 }
 
 /// Per-axis minimum and maximum, mm.
-pub(crate) fn bounds(points: &[Point]) -> ([f64; 3], [f64; 3]) {
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    for p in points {
-        for k in 0..3 {
-            lo[k] = lo[k].min(f64::from(p[k]));
-            hi[k] = hi[k].max(f64::from(p[k]));
-        }
-    }
-    (lo, hi)
-}
+pub(crate) use binpick_match::index::bounds;
 
 /// The scene points left for the voxel grid: cropped to the region of interest, without
 /// strays, checked for units. Shared by both engines; fills the report's counts.
