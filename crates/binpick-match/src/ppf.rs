@@ -114,13 +114,41 @@ impl Frame {
 
 /// The rotation bin of a scene partner at `phi_s` and a model partner at `phi_m` (radians in
 /// [-pi, pi], as `Frame::phi` gives): the bin of `(phi_s - phi_m) mod 2 pi`, with
-/// `per_radian` = bins / 2 pi. Wrapped in bin units with one comparison and no division: the
-/// voting loop's hottest line.
-#[inline]
+/// `per_radian` = bins / 2 pi. Wrapped in bin units with one comparison and no division, and
+/// truncated by way of `i32` (one instruction; `as usize` takes two and a select, same
+/// result for every input: NaN and negatives give 0): the voting loop's hottest line.
+#[inline(always)]
 fn alpha_bin(phi_s: f32, phi_m: f32, per_radian: f32, bins: usize) -> usize {
     let x = (phi_s - phi_m) * per_radian;
     let x = if x < 0.0 { x + bins as f32 } else { x };
-    (x as usize).min(bins - 1)
+    ((x as i32).max(0) as usize).min(bins - 1)
+}
+
+/// One scene pair's votes: every model pair `entries` of its feature bin votes for (model
+/// point, rotation bin) in `acc`; slots voted for the first time are appended to
+/// `touched[n_touched..]`. Returns the new `n_touched`. Apart from the voting loop so its
+/// counters stay in registers (inlined there, `n_touched` went through the stack on every
+/// vote).
+#[inline(never)]
+fn accumulate(
+    entries: &[Entry],
+    phi_s: f32,
+    per_radian: f32,
+    n_alpha: usize,
+    acc: &mut [u32],
+    touched: &mut [u32],
+    mut n_touched: usize,
+) -> usize {
+    for e in entries {
+        let a = alpha_bin(phi_s, e.phi, per_radian, n_alpha);
+        let slot = e.point as usize * n_alpha + a;
+        let count = &mut acc[slot];
+        // Written without a branch: appended always, kept only when new.
+        touched[n_touched] = slot as u32;
+        n_touched += usize::from(*count == 0);
+        *count += 1;
+    }
+    n_touched
 }
 
 /// The feature of a pair, or None for coincident points or undefined normals.
@@ -324,8 +352,8 @@ impl PpfModel {
         let votes: Vec<Vec<Vote>> = references
             .par_iter()
             .map_init(
-                // `touched[..n]` lists the slots voted for, in first-vote order; written
-                // without a branch (a slot is appended always, kept only when new).
+                // `touched[..n]` lists the slots voted for, in first-vote order
+                // (`accumulate`).
                 || {
                     let slots = n_model * n_alpha;
                     let voted = std::collections::HashSet::<u64>::new();
@@ -365,14 +393,15 @@ impl PpfModel {
                                 continue;
                             }
                         }
-                        for e in &self.entries[lo..hi] {
-                            let a = alpha_bin(phi_s, e.phi, per_radian, n_alpha);
-                            let slot = e.point as usize * n_alpha + a;
-                            let count = &mut acc[slot];
-                            touched[n_touched] = slot as u32;
-                            n_touched += usize::from(*count == 0);
-                            *count += 1;
-                        }
+                        n_touched = accumulate(
+                            &self.entries[lo..hi],
+                            phi_s,
+                            per_radian,
+                            n_alpha,
+                            acc,
+                            touched,
+                            n_touched,
+                        );
                     }
                     let touched = &touched[..n_touched];
                     let peaks = self.peaks(acc, touched, config, n_alpha);
@@ -585,6 +614,40 @@ pub(crate) mod tests {
     use super::*;
     use crate::poses::{PoseClustering, Symmetries, cluster_poses};
     use nalgebra::Point3;
+
+    #[test]
+    fn alpha_bins_truncated_by_i32_are_those_truncated_by_usize() {
+        let bins = 30;
+        let per_radian = bins as f32 / std::f32::consts::TAU;
+        let by_usize = |s: f32, m: f32| {
+            let x = (s - m) * per_radian;
+            let x = if x < 0.0 { x + bins as f32 } else { x };
+            (x as usize).min(bins - 1)
+        };
+        let mut phis = vec![
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            -0.0,
+            0.0,
+            -7.0,
+            -std::f32::consts::TAU,
+            std::f32::consts::TAU,
+            -1e-30,
+            1e9,
+            -1e9,
+        ];
+        let mut v = 0.376_f32;
+        for _ in 0..2_000 {
+            v = (v * 7.31 + 0.41).fract();
+            phis.push((v - 0.5) * 14.0);
+        }
+        for &s in &phis {
+            for &m in phis.iter().step_by(7) {
+                assert_eq!(alpha_bin(s, m, per_radian, bins), by_usize(s, m), "{s} {m}");
+            }
+        }
+    }
 
     #[test]
     fn alpha_bins_are_those_of_the_wrapped_difference() {
