@@ -82,6 +82,13 @@ pub fn run(a: InspectArgs) -> Result<()> {
             m.median_gap_mm,
             m.p99_gap_mm
         );
+        if m.kind == SelfMatchKind::NearSymmetry && m.hides_scanned_side {
+            println!(
+                "    this turn shows the side the scan never saw: a part lying the other way up \
+                 fits the scan as this turn, so recognition withholds first picks (give the CAD \
+                 mesh, or set pick_turn_ambiguous where every part lies the scanned side up)"
+            );
+        }
     }
     // The sidecar that declares what was found.
     let revolution = r

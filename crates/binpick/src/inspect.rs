@@ -14,25 +14,15 @@ use nalgebra::{Isometry3, Matrix3, Translation3, Unit, UnitQuaternion, Vector3};
 use serde::Serialize;
 
 use binpick_cloud::{Point, RowMajor4x4, pose_to_row_major};
-use binpick_match::PointIndex;
 use binpick_pcl::IcpParams;
 
-use crate::error::{Result, input};
-use crate::stages::model::near_symmetries;
+use crate::error::Result;
+pub use crate::stages::model::SelfMatchKind;
+use crate::stages::model::{SelfMatchGauge, near_symmetries};
 use crate::stages::part::{Part, PartSource};
-use crate::stages::scale::measure_spacing;
 
-/// Surface points the gaps are measured on.
-const GAP_SAMPLES: usize = 4000;
 /// Orders tried about each principal axis (rotation by 360/n degrees).
 const ORDERS: [u32; 6] = [2, 3, 4, 5, 6, 8];
-/// A symmetry's 99th-percentile gap is at most this many surface spacings ...
-const SYMMETRY_GAP_SPACINGS: f64 = 2.0;
-/// ... plus this share of the diameter (sampling of curved surfaces).
-const SYMMETRY_GAP_DIAMETERS: f64 = 0.005;
-/// A near-symmetry's median gap is within the symmetry tolerance (most of the surface maps
-/// onto itself) and its 99th-percentile gap is at most this share of the diameter.
-const NEAR_GAP_DIAMETERS: f64 = 0.15;
 /// Two rotations are the same when they move every sample point less than this share of the
 /// diameter apart.
 const SAME_DIAMETERS: f64 = 0.05;
@@ -44,16 +34,6 @@ const REVOLUTION_SAME: f64 = 0.02;
 /// A rotation found: the turn, its kind, its (median, p99) gaps in mm, whether about a
 /// revolution axis.
 type Found = (Isometry3<f64>, SelfMatchKind, (f64, f64), bool);
-
-/// Whether a rotation maps the part onto itself.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum SelfMatchKind {
-    /// Everywhere, within the sampling: declare it.
-    Symmetry,
-    /// Most of the surface, not all: a pose turned by it is wrong.
-    NearSymmetry,
-}
 
 /// One rotation that maps the part (almost) onto itself.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -75,6 +55,10 @@ pub struct SelfMatch {
     /// Whether every order tried about this axis maps it onto itself (a body of
     /// revolution): declare `revolution_axis` instead of single turns.
     pub revolution: bool,
+    /// A scanned model only: the turn shows the side the scanner never saw
+    /// ([`Part::turn_hides_scanned_side`]). For a near-symmetry this means the scan cannot
+    /// tell a part lying the other way up from the turn.
+    pub hides_scanned_side: bool,
 }
 
 /// What `binpick model inspect` prints.
@@ -104,42 +88,17 @@ pub struct PartInspection {
 /// the ICP refinements (0 = all).
 pub fn inspect_part(part: &Part) -> Result<PartInspection> {
     let surface = &part.surface.points;
-    let spacing_mm = measure_spacing(surface)?
-        .map(|s| s.spacing_mm)
-        .ok_or_else(|| input("model", "fewer than 9 distinct points"))?;
     let diameter_mm = part.size.diameter_mm;
-    let tolerance = SYMMETRY_GAP_SPACINGS * spacing_mm + SYMMETRY_GAP_DIAMETERS * diameter_mm;
-    let index = PointIndex::new("model", surface).map_err(|e| input("model", e.to_string()))?;
-    let sample = binpick_cloud::strided_points(surface, GAP_SAMPLES);
-
+    let gauge = SelfMatchGauge::new(surface, diameter_mm)?;
+    let (sample, spacing_mm, tolerance) = (&gauge.sample, gauge.spacing_mm, gauge.tolerance_mm);
     let centroid = sample.iter().map(|p| p.coords).sum::<Vector3<f64>>() / sample.len() as f64;
     let cov = sample.iter().fold(Matrix3::zeros(), |acc, p| {
         acc + (p.coords - centroid) * (p.coords - centroid).transpose()
     }) / sample.len() as f64;
     let axes = cov.symmetric_eigen().eigenvectors;
 
-    let gaps = |t: &Isometry3<f64>| -> (f64, f64) {
-        let mut d: Vec<f64> = sample
-            .iter()
-            .map(|p| {
-                let q = t * p;
-                let q: Point = [q.x as f32, q.y as f32, q.z as f32];
-                f64::from(index.nearest(&q).1).sqrt()
-            })
-            .collect();
-        d.sort_by(f64::total_cmp);
-        let at = |f: f64| d[((d.len() - 1) as f64 * f).round() as usize];
-        (at(0.5), at(0.99))
-    };
-    let classify = |(median, p99): (f64, f64)| {
-        if p99 <= tolerance {
-            Some(SelfMatchKind::Symmetry)
-        } else if median <= tolerance && p99 <= NEAR_GAP_DIAMETERS * diameter_mm {
-            Some(SelfMatchKind::NearSymmetry)
-        } else {
-            None
-        }
-    };
+    let gaps = |t: &Isometry3<f64>| gauge.gaps(t);
+    let classify = |g: (f64, f64)| gauge.classify(g);
 
     let mut found: Vec<Found> = Vec::new();
     for k in 0..3 {
@@ -247,6 +206,7 @@ pub fn inspect_part(part: &Part) -> Result<PartInspection> {
                 median_gap_mm: median,
                 p99_gap_mm: p99,
                 revolution,
+                hides_scanned_side: part.turn_hides_scanned_side(&t),
             }
         })
         .collect();

@@ -39,7 +39,7 @@ use crate::stages::preprocess::{
     SupportSize, bounds, check_units, clean_scene, label_support_noise, preprocess, support_of,
     voxelise,
 };
-use crate::stages::rank::{rank_by_view, rank_detections, suppress_duplicates};
+use crate::stages::rank::{rank_by_view, rank_detections, suppress_duplicates, withhold_picks};
 use crate::stages::scale::measure_spacing;
 use crate::workers::Workers;
 
@@ -309,6 +309,13 @@ impl Recognizer {
         }
         let start = Instant::now();
         let model = Arc::new(VotingModel::new(&self.part, scale, &self.stages.voting)?);
+        if model.turn_ambiguous {
+            tracing::warn!(
+                "the model is a scan whose near-symmetric turn shows the side its scanner never \
+                 saw: a part lying the other way up fits as that turn, so first picks are \
+                 withheld unless pick_turn_ambiguous (a CAD mesh has no such ambiguity)"
+            );
+        }
         let mut cache = self.voting.lock().map_err(|_| poisoned())?;
         if let Some((_, m)) = cache.iter().find(|(k, _)| *k == key) {
             return Ok(Arc::clone(m));
@@ -472,6 +479,14 @@ impl Recognizer {
             p.verify.free_space_weight,
             edge_on,
         );
+        if voting.as_ref().is_some_and(|v| v.turn_ambiguous) && !p.ranking.pick_turn_ambiguous {
+            withhold_picks(
+                &mut detections,
+                "the model is a scan whose near-symmetric turn shows the side its scanner never \
+                 saw, so this pose cannot be told from its turn (give the CAD mesh, or set \
+                 pick_turn_ambiguous where every part lies the scanned side up)",
+            );
+        }
         let tolerance = scale.map_or(p.validation.outlier_distance_mm, |s| s.tolerance_mm);
         self.check_grasps(&mut detections, &points, p, tolerance)?;
         drop(ranking);

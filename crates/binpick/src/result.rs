@@ -739,6 +739,12 @@ pub struct VotingReport {
     pub rejected_poor_fit: usize,
     /// Refused: its surface is already explained by a taken part.
     pub rejected_explained: usize,
+    /// The model is a scan whose near-symmetric turn shows the side its scanner never saw
+    /// ([`Part::turn_hides_scanned_side`](crate::Part::turn_hides_scanned_side)): no
+    /// detection can be told from its turn, and none is free to pick unless
+    /// `pick_turn_ambiguous`. Absent (false) otherwise.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub turn_ambiguous: bool,
     /// The best refused candidate that was not a repeat of a taken part, when there is one.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub best_refused: Option<RefusedCandidate>,

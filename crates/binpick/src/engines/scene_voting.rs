@@ -261,6 +261,7 @@ impl SceneVoting<'_> {
         drop(indexes);
         let mut report = VotingReport {
             sensor: describe(&sensor),
+            turn_ambiguous: self.model.turn_ambiguous,
             ..VotingReport::default()
         };
         if surface.world.len() < 3 {

@@ -336,6 +336,14 @@ stage_config! {
         /// (scene-voting) or `outlier_distance_mm` (thesis).
         #[serde(skip_serializing_if = "Option::is_none")]
         grasp_surface_tolerance_mm: Option<f64> = None, auto(within(0.01, 50.0, "mm"));
+        /// Scene-voting engine: pick parts found with a scanned model whose near-symmetric
+        /// turn shows the side its scanner never saw (`binpick model inspect` says so). A
+        /// part lying the other way up then fits the model as that turn, so no detection
+        /// can be told from its turn: off, such detections are reported but none is free to
+        /// pick (on a belt of Z brackets with a top-view scan, 15 % of first picks were the
+        /// turn). Turn on only where every part lies the scanned side up; else give the CAD
+        /// mesh.
+        pick_turn_ambiguous: bool = false, any();
     }
 }
 

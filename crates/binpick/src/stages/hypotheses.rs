@@ -15,7 +15,7 @@ use binpick_pcl::IcpParams;
 use crate::error::{Error, Result, pcl};
 use crate::params::VotingConfig;
 use crate::result::DerivedScale;
-use crate::stages::model::near_symmetries;
+use crate::stages::model::{near_symmetries, scan_cannot_tell_turns};
 use crate::stages::part::Part;
 use crate::stages::preprocess::plane_distance_mm;
 
@@ -54,6 +54,9 @@ pub(crate) struct VotingModel {
     /// The points of `dense` farthest out along a spread of directions: the part's deepest
     /// point behind any plane is one of them, or within a sample spacing of one.
     pub extremes: Vec<Point3<f64>>,
+    /// A scanned part that cannot be told from one of its near-symmetric turns
+    /// ([`scan_cannot_tell_turns`]): no first pick unless `pick_turn_ambiguous`.
+    pub turn_ambiguous: bool,
 }
 
 impl VotingModel {
@@ -89,7 +92,7 @@ impl VotingModel {
             .map(|p| [p.x as f32, p.y as f32, p.z as f32])
             .collect();
         let eps = 1e-6 * scale.resolution_mm * scale.resolution_mm;
-        let near_symmetries = near_symmetries(
+        let near_symmetries: Vec<Isometry3<f64>> = near_symmetries(
             &dense.points,
             &kp,
             part.size.diameter_mm,
@@ -114,9 +117,11 @@ impl VotingModel {
             })
         })
         .collect();
+        let turn_ambiguous = scan_cannot_tell_turns(part, &near_symmetries)?;
         Ok(Self {
             centre: part.centre(),
             extremes: extreme_points(&dense.points, EXTREME_DIRECTIONS),
+            turn_ambiguous,
             dense,
             table,
             rims,

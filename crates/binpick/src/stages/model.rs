@@ -122,6 +122,105 @@ impl PreparedModel {
     }
 }
 
+/// Surface points a self-match's gaps are measured on.
+const GAP_SAMPLES: usize = 4000;
+/// A symmetry's 99th-percentile gap is at most this many surface spacings ...
+const SYMMETRY_GAP_SPACINGS: f64 = 2.0;
+/// ... plus this share of the diameter (sampling of curved surfaces).
+const SYMMETRY_GAP_DIAMETERS: f64 = 0.005;
+/// A near-symmetry's median gap is within the symmetry tolerance (most of the surface maps
+/// onto itself) and its 99th-percentile gap is at most this share of the diameter.
+const NEAR_GAP_DIAMETERS: f64 = 0.15;
+
+/// Whether a rotation maps the part onto itself.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SelfMatchKind {
+    /// Everywhere, within the sampling: declare it.
+    Symmetry,
+    /// Most of the surface, not all: a pose turned by it is wrong.
+    NearSymmetry,
+}
+
+/// Measures how closely a rotation maps a surface onto itself: the gaps between the turned
+/// surface and the surface (a kd-tree in Rust), and what they make it.
+pub(crate) struct SelfMatchGauge {
+    index: binpick_match::PointIndex,
+    /// The points the gaps are measured on (evenly strided).
+    pub sample: Vec<Point3<f64>>,
+    /// The surface's point spacing, mm.
+    pub spacing_mm: f64,
+    /// A symmetry's largest 99th-percentile gap (and a near-symmetry's largest median), mm.
+    pub tolerance_mm: f64,
+    diameter_mm: f64,
+}
+
+impl SelfMatchGauge {
+    pub(crate) fn new(surface: &[Point], diameter_mm: f64) -> Result<Self> {
+        let spacing_mm = crate::stages::scale::measure_spacing(surface)?
+            .map(|s| s.spacing_mm)
+            .ok_or_else(|| crate::error::input("model", "fewer than 9 distinct points"))?;
+        let index = binpick_match::PointIndex::new("model", surface)
+            .map_err(|e| crate::error::input("model", e.to_string()))?;
+        Ok(Self {
+            index,
+            sample: binpick_cloud::strided_points(surface, GAP_SAMPLES),
+            spacing_mm,
+            tolerance_mm: SYMMETRY_GAP_SPACINGS * spacing_mm + SYMMETRY_GAP_DIAMETERS * diameter_mm,
+            diameter_mm,
+        })
+    }
+
+    /// Median and 99th-percentile distance from a sample point turned by `t` to the
+    /// surface, mm.
+    pub(crate) fn gaps(&self, t: &Isometry3<f64>) -> (f64, f64) {
+        let mut d: Vec<f64> = self
+            .sample
+            .iter()
+            .map(|p| {
+                let q = t * p;
+                let q: Point = [q.x as f32, q.y as f32, q.z as f32];
+                f64::from(self.index.nearest(&q).1).sqrt()
+            })
+            .collect();
+        d.sort_by(f64::total_cmp);
+        let at = |f: f64| d[((d.len() - 1) as f64 * f).round() as usize];
+        (at(0.5), at(0.99))
+    }
+
+    /// What gaps `(median, p99)` make a rotation: a symmetry, a near-symmetry or neither.
+    pub(crate) fn classify(&self, (median, p99): (f64, f64)) -> Option<SelfMatchKind> {
+        if p99 <= self.tolerance_mm {
+            Some(SelfMatchKind::Symmetry)
+        } else if median <= self.tolerance_mm && p99 <= NEAR_GAP_DIAMETERS * self.diameter_mm {
+            Some(SelfMatchKind::NearSymmetry)
+        } else {
+            None
+        }
+    }
+}
+
+/// Whether a scanned part cannot be told from its turn by one of `turns`: a turn that maps
+/// the scan (nearly) onto itself, as `model inspect` classes it, and shows the side the scan
+/// never saw ([`Part::turn_hides_scanned_side`](crate::Part::turn_hides_scanned_side)). A
+/// part lying the other way up then fits the scan as that turn. Always false for a mesh.
+pub(crate) fn scan_cannot_tell_turns(
+    part: &crate::stages::part::Part,
+    turns: &[Isometry3<f64>],
+) -> Result<bool> {
+    let hiding: Vec<&Isometry3<f64>> = turns
+        .iter()
+        .filter(|t| part.turn_hides_scanned_side(t))
+        .collect();
+    if hiding.is_empty() {
+        return Ok(false);
+    }
+    let gauge = SelfMatchGauge::new(&part.surface.points, part.size.diameter_mm)?;
+    Ok(hiding
+        .iter()
+        .any(|t| gauge.classify(gauge.gaps(t)).is_some()))
+}
+
 /// The half-turns about the model's principal axes (through its centroid), each refined by
 /// ICP of the model's final keypoints onto the model, keeping those that do not collapse to
 /// the identity. Bent sheets and pipes are often nearly symmetric under one of them, and the
@@ -205,4 +304,44 @@ pub(crate) fn diameter(points: &[Point]) -> f64 {
         }
     }
     best.sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+    use crate::stages::part::Part;
+
+    /// A flat 60 x 20 mm sheet scanned from above (0.5 mm grid), centred on the origin.
+    fn scanned_sheet() -> Part {
+        let points: Vec<Point> = (0..120)
+            .flat_map(|i| {
+                (0..40).map(move |j| [i as f32 * 0.5 - 29.75, j as f32 * 0.5 - 9.75, 0.0])
+            })
+            .collect();
+        Part::from_scan(&PointCloud::new(points), [0.0, 0.0, 300.0], 1).unwrap()
+    }
+
+    #[test]
+    fn a_scan_cannot_tell_a_turn_that_fits_it_upside_down() {
+        let sheet = scanned_sheet();
+        let half = |axis: Vector3<f64>, through: Vector3<f64>| {
+            Translation3::from(through)
+                * UnitQuaternion::from_axis_angle(&Unit::new_normalize(axis), std::f64::consts::PI)
+                * Translation3::from(-through)
+        };
+        // Upside down onto itself: the scan shows nothing that tells the two apart.
+        let flip = half(Vector3::x(), Vector3::zeros());
+        assert!(sheet.turn_hides_scanned_side(&flip));
+        assert!(scan_cannot_tell_turns(&sheet, &[flip]).unwrap());
+        // About the scanner's axis the scanned side stays up: the view judges the turn.
+        let about_view = half(Vector3::z(), Vector3::zeros());
+        assert!(!sheet.turn_hides_scanned_side(&about_view));
+        assert!(!scan_cannot_tell_turns(&sheet, &[about_view]).unwrap());
+        // Upside down but 40 mm away from itself: not a self-match, nothing to confuse.
+        let far = half(Vector3::x(), Vector3::new(0.0, 20.0, 0.0));
+        assert!(sheet.turn_hides_scanned_side(&far));
+        assert!(!scan_cannot_tell_turns(&sheet, &[far]).unwrap());
+        assert!(scan_cannot_tell_turns(&sheet, &[about_view, far, flip]).unwrap());
+    }
 }

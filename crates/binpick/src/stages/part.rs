@@ -4,7 +4,7 @@
 
 use std::sync::Arc;
 
-use nalgebra::{Isometry3, Point3};
+use nalgebra::{Isometry3, Point3, Vector3};
 
 use binpick_cloud::{Point, PointCloud};
 use binpick_match::{OrientedPoints, Symmetries};
@@ -156,5 +156,31 @@ impl Part {
     /// The canonical pose of `pose` under the part's symmetries.
     pub fn canonical(&self, pose: &Isometry3<f64>) -> Isometry3<f64> {
         self.symmetries.canonical(pose)
+    }
+
+    /// The direction a scanned model was seen from (its normals' mean, model frame); None
+    /// for a mesh, which has every side, or a scan whose normals cancel out.
+    pub fn scanned_side(&self) -> Option<Vector3<f64>> {
+        if self.source != PartSource::Scan {
+            return None;
+        }
+        let sum = self
+            .surface
+            .normals
+            .iter()
+            .fold(Vector3::zeros(), |acc, n| {
+                acc + Vector3::new(f64::from(n[0]), f64::from(n[1]), f64::from(n[2]))
+            });
+        (sum.norm() > f64::EPSILON * self.surface.len() as f64).then(|| sum.normalize())
+    }
+
+    /// Whether `turn` (model frame) shows the side of a scanned model its scanner never
+    /// saw: it turns the scanned side more than 90 deg away. A near-symmetric turn that does
+    /// cannot be judged against the scan (the model has no surface there to render), and a
+    /// part lying the other way up fits the model as that turn: the scan cannot tell the
+    /// two poses apart. Always false for a mesh.
+    pub fn turn_hides_scanned_side(&self, turn: &Isometry3<f64>) -> bool {
+        self.scanned_side()
+            .is_some_and(|v| (turn.rotation * v).dot(&v) < 0.0)
     }
 }

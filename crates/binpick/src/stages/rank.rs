@@ -220,6 +220,15 @@ pub(crate) fn rank_by_view(
     }
 }
 
+/// Makes every detection not free to pick (so the result has no first pick), saying `why`
+/// in its rank reason; the order stays.
+pub(crate) fn withhold_picks(detections: &mut [Detection], why: &str) {
+    for d in detections {
+        d.free_to_pick = false;
+        d.rank_reason = format!("withheld: {why}; otherwise {}", d.rank_reason);
+    }
+}
+
 fn ordinal(n: usize) -> String {
     let suffix = match (n % 10, n % 100) {
         (1, x) if x != 11 => "st",
