@@ -43,6 +43,12 @@ use crate::stages::rank::{rank_by_view, rank_detections, suppress_duplicates, wi
 use crate::stages::scale::measure_spacing;
 use crate::workers::Workers;
 
+/// Why a turn-ambiguous model's picks are withheld (`VotingReport::turn_ambiguous`).
+const TURN_AMBIGUOUS: &str = "the model is a scan whose near-symmetric turn shows the side its \
+     scanner never saw, so a part lying the other way up fits it as that turn and no pose can \
+     be told from its turn (give the CAD mesh, or set pick_turn_ambiguous where every part \
+     lies the scanned side up)";
+
 /// One scan made ready for the scene-voting engine.
 struct PreparedScene {
     scale: DerivedScale,
@@ -310,11 +316,7 @@ impl Recognizer {
         let start = Instant::now();
         let model = Arc::new(VotingModel::new(&self.part, scale, &self.stages.voting)?);
         if model.turn_ambiguous {
-            tracing::warn!(
-                "the model is a scan whose near-symmetric turn shows the side its scanner never \
-                 saw: a part lying the other way up fits as that turn, so first picks are \
-                 withheld unless pick_turn_ambiguous (a CAD mesh has no such ambiguity)"
-            );
+            tracing::warn!("{TURN_AMBIGUOUS}: first picks are withheld");
         }
         let mut cache = self.voting.lock().map_err(|_| poisoned())?;
         if let Some((_, m)) = cache.iter().find(|(k, _)| *k == key) {
@@ -480,12 +482,7 @@ impl Recognizer {
             edge_on,
         );
         if voting.as_ref().is_some_and(|v| v.turn_ambiguous) && !p.ranking.pick_turn_ambiguous {
-            withhold_picks(
-                &mut detections,
-                "the model is a scan whose near-symmetric turn shows the side its scanner never \
-                 saw, so this pose cannot be told from its turn (give the CAD mesh, or set \
-                 pick_turn_ambiguous where every part lies the scanned side up)",
-            );
+            withhold_picks(&mut detections, TURN_AMBIGUOUS);
         }
         let tolerance = scale.map_or(p.validation.outlier_distance_mm, |s| s.tolerance_mm);
         self.check_grasps(&mut detections, &points, p, tolerance)?;
