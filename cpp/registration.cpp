@@ -114,6 +114,10 @@ constexpr double CERTIFY_MARGIN = 1e-4;
 // Points an ICP source point keeps from its last search.
 constexpr int ANCHOR_POINTS = 8;
 
+// How far past the correspondence distance a source point with no target point within it
+// looks for its nearest one: while it moves less than the gap, it has no correspondence.
+constexpr double LONELY_REACH = 2.0;
+
 // PCL's CorrespondenceEstimation with the same answers, but one FLANN call per ICP iteration
 // instead of one per source point: PCL's per-point path enters an OpenMP region and allocates
 // for every query, which made that overhead most of ICP's time. Nearest neighbours come from
@@ -122,7 +126,10 @@ constexpr int ANCHOR_POINTS = 8;
 // target points of its last search, and while it stays nearer to one of them than any other
 // target point can have come (the last search's reach less how far it moved since), its
 // nearest point is that one and the kd-tree is not searched (about 6 queries in 10 on a belt
-// scan). Equally near points go to the single search, which picks as PCL does.
+// scan). A source point with no target point within the distance (model surface the scan
+// does not show: two in three of the searches otherwise) keeps how far the nearest one lay,
+// up to LONELY_REACH times the distance, and is not searched while it has not moved close
+// enough to reach it. Equally near points go to the single search, which picks as PCL does.
 class BatchCorrespondenceEstimation
     : public pcl::registration::CorrespondenceEstimation<pcl::PointXYZ, pcl::PointXYZ, double> {
  public:
@@ -149,7 +156,13 @@ class BatchCorrespondenceEstimation
     for (std::size_t i = 0; i < n; ++i) {
       const pcl::PointXYZ& q = (*input_)[(*indices_)[i]];
       const Anchor& a = anchors_[i];
-      if (a.count > 0) {
+      if (a.count == 0 && a.reach > 0.0) {
+        // No target point lay within a.reach of the anchor, so none within a.reach - moved
+        // of q: no correspondence while that is beyond the distance.
+        const double dx = double(q.x) - a.x, dy = double(q.y) - a.y, dz = double(q.z) - a.z;
+        const double moved = std::sqrt(dx * dx + dy * dy + dz * dz);
+        if ((a.reach - moved) * (1.0 - CERTIFY_MARGIN) > max_distance) continue;
+      } else if (a.count > 0) {
         // Every point not cached lay at least a.reach from the anchor, so at least
         // a.reach - moved from q: the nearest cached point is q's nearest when nearer.
         const double dx = double(q.x) - a.x, dy = double(q.y) - a.y, dz = double(q.z) - a.z;
@@ -186,13 +199,17 @@ class BatchCorrespondenceEstimation
           return cloud[(*indices_)[searched[k]]];
         },
         ANCHOR_POINTS, bound);
+    std::vector<std::size_t> lonely;  // no target point within the distance
     for (std::size_t k = 0; k < searched.size(); ++k) {
       const std::size_t i = searched[k];
       const int* idx = &near.index[ANCHOR_POINTS * k];
       const float* d2 = &near.distance_sqr[ANCHOR_POINTS * k];
       Anchor& a = anchors_[i];
       a = Anchor{};
-      if (idx[0] < 0) continue;
+      if (idx[0] < 0) {
+        lonely.push_back(i);
+        continue;
+      }
       int count = 0;
       while (count < ANCHOR_POINTS && idx[count] >= 0) {
         a.cached[count] = idx[count];
@@ -210,6 +227,23 @@ class BatchCorrespondenceEstimation
       a.count = count;
       // Fewer within the bound: every other point lies at least that far.
       a.reach = std::sqrt(double(count == ANCHOR_POINTS ? d2[ANCHOR_POINTS - 1] : bound));
+    }
+    if (!lonely.empty()) {
+      const float far = exclusive_bound(LONELY_REACH * LONELY_REACH * max_sqr);
+      auto point = [&](const PointCloudXYZ& cloud, std::size_t t) -> const pcl::PointXYZ& {
+        return cloud[(*indices_)[lonely[t]]];
+      };
+      const Nearest nearest = k_nearest_within(*index_, lonely.size(), *input_, point, 1, far);
+      for (std::size_t t = 0; t < lonely.size(); ++t) {
+        Anchor& a = anchors_[lonely[t]];
+        const pcl::PointXYZ& q = point(*input_, t);
+        a.x = q.x;
+        a.y = q.y;
+        a.z = q.z;
+        a.count = 0;
+        // Every target point lies at least this far (none found: the search's reach).
+        a.reach = std::sqrt(double(nearest.index[t] >= 0 ? nearest.distance_sqr[t] : far));
+      }
     }
     if (!tied.empty()) {
       const Nearest single = nearest_within(
@@ -295,7 +329,9 @@ class BatchCorrespondenceEstimation
   const BatchIndex* index_;
   // Where a source point was last searched, the ANCHOR_POINTS nearest target points there
   // (fewer when fewer lay within the bound) and the reach: the distance of the last of them,
-  // or the bound's when fewer were found.
+  // or the bound's when fewer were found. With none within the bound (count 0), the reach is
+  // the nearest one's distance, or LONELY_REACH bounds when none lay within that either; 0
+  // before the first search.
   struct Anchor {
     double x = 0.0, y = 0.0, z = 0.0;
     std::array<int, ANCHOR_POINTS> cached{};

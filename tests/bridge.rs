@@ -203,6 +203,46 @@ fn batched_icp_matches_pcl_on_a_lattice_full_of_equally_near_points() {
     }
 }
 
+#[test]
+fn batched_icp_matches_pcl_when_points_with_no_target_near_come_within_reach() {
+    // A 1 mm lattice plane at z = 0 and a source plane 1.2 mm above it with a strip 2.0 mm
+    // above it: at a 1.5 mm correspondence distance the strip has no target point within
+    // reach at first, and comes within reach once ICP has lowered the source. A batched
+    // search that kept the strip's points without correspondences would align differently.
+    let target: Vec<Point> = (0..40)
+        .flat_map(|i| (0..30).map(move |j| [i as f32, j as f32, 0.0]))
+        .collect();
+    let source: Vec<Point> = (0..400)
+        .map(|n| {
+            let (x, y) = (5.0 + 0.75 * (n % 40) as f32, 5.0 + 1.9 * (n / 40) as f32);
+            let z = if n % 40 < 8 { 2.0 } else { 1.2 };
+            [x + 0.3, y + 0.2, z]
+        })
+        .collect();
+    let cloud = IndexedCloud::new(&target).unwrap();
+    let run = |batch| {
+        cloud
+            .icp(
+                &source,
+                &IcpParams {
+                    initial: to_mat4(&Isometry3::identity()),
+                    max_correspondence_distance: 1.5,
+                    max_iterations: 30,
+                    transformation_epsilon: 1e-9,
+                    batch_correspondences: batch,
+                    relative_mse: 0.0,
+                    reciprocal: false,
+                },
+            )
+            .unwrap()
+    };
+    let (plain, batched) = (run(false), run(true));
+    assert!(plain.iterations > 2, "{plain:?}");
+    // The strip came within reach: lowered by more than the 0.5 mm it needed.
+    assert!(plain.transform[11] < -0.6, "{plain:?}");
+    assert_eq!(plain, batched, "identical transform, iterations, fitness and stop reason");
+}
+
 fn fpfh_at(points: &[Point], keypoints: &[u32], viewpoint: Point) -> Vec<[f32; 33]> {
     let set = IndexedCloud::new(points)
         .unwrap()
