@@ -29,7 +29,7 @@ use crate::stages::part::Part;
 /// The first line of every prepared-model file.
 const MAGIC: &[u8] = b"binpick prepared model\n";
 /// Version of the layout; raised whenever a prepared type changes.
-pub const PREPARED_FORMAT: u32 = 5;
+pub const PREPARED_FORMAT: u32 = 6;
 /// The extension `binpick model prepare` writes and `load_part` recognises.
 pub const PREPARED_EXTENSION: &str = "prepared";
 

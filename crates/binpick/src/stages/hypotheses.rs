@@ -15,7 +15,7 @@ use binpick_pcl::IcpParams;
 use crate::error::{Error, Result, pcl};
 use crate::params::VotingConfig;
 use crate::result::DerivedScale;
-use crate::stages::model::{near_symmetries, scan_cannot_tell_turns};
+use crate::stages::model::{near_symmetries, scan_cannot_tell_turns, self_matching_turns};
 use crate::stages::part::{Part, PartSource};
 use crate::stages::preprocess::plane_distance_mm;
 
@@ -52,7 +52,8 @@ pub(crate) struct VotingModel {
     pub rims: Option<Rims>,
     /// Centroid of the surface, model frame.
     pub centre: Point3<f64>,
-    /// Half-turns about the principal axes that map the part nearly onto itself.
+    /// Half-turns about the principal axes, refined by ICP, that map the part nearly onto
+    /// itself ([`self_matching_turns`](crate::stages::model::self_matching_turns)).
     pub near_symmetries: Vec<Isometry3<f64>>,
     /// The points of `dense` farthest out along a spread of directions: the part's deepest
     /// point behind any plane is one of them, or within a sample spacing of one.
@@ -104,7 +105,7 @@ impl VotingModel {
             .map(|p| [p.x as f32, p.y as f32, p.z as f32])
             .collect();
         let eps = 1e-6 * scale.resolution_mm * scale.resolution_mm;
-        let near_symmetries: Vec<Isometry3<f64>> = near_symmetries(
+        let half_turns: Vec<Isometry3<f64>> = near_symmetries(
             &dense.points,
             &kp,
             part.size.diameter_mm,
@@ -129,6 +130,7 @@ impl VotingModel {
             })
         })
         .collect();
+        let near_symmetries = self_matching_turns(part, half_turns)?;
         let turn_ambiguous = scan_cannot_tell_turns(part, &near_symmetries)?;
         Ok(Self {
             centre: part.centre(),

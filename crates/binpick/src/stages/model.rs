@@ -200,6 +200,25 @@ impl SelfMatchGauge {
     }
 }
 
+/// The turns of `turns` that map the part's surface onto itself, everywhere or nearly (as
+/// `model inspect` classes them): only those can be mistaken for the part, so only those
+/// are worth trying on a hypothesis. The half-turns about the principal axes that map a
+/// bracket onto nothing like itself were refined on every acceptable hypothesis and never
+/// taken.
+pub(crate) fn self_matching_turns(
+    part: &crate::stages::part::Part,
+    turns: Vec<Isometry3<f64>>,
+) -> Result<Vec<Isometry3<f64>>> {
+    if turns.is_empty() {
+        return Ok(turns);
+    }
+    let gauge = SelfMatchGauge::new(&part.surface.points, part.size.diameter_mm)?;
+    Ok(turns
+        .into_iter()
+        .filter(|t| gauge.classify(gauge.gaps(t)).is_some())
+        .collect())
+}
+
 /// Whether a scanned part cannot be told from its turn by one of `turns`: a turn that maps
 /// the scan (nearly) onto itself, as `model inspect` classes it, and shows the side the scan
 /// never saw ([`Part::turn_hides_scanned_side`](crate::Part::turn_hides_scanned_side)). A
@@ -322,14 +341,29 @@ mod tests {
         Part::from_scan(&PointCloud::new(points), [0.0, 0.0, 300.0], 1).unwrap()
     }
 
+    /// The half turn about `axis` through `through`.
+    fn half(axis: Vector3<f64>, through: Vector3<f64>) -> Isometry3<f64> {
+        Translation3::from(through)
+            * UnitQuaternion::from_axis_angle(&Unit::new_normalize(axis), std::f64::consts::PI)
+            * Translation3::from(-through)
+    }
+
+    #[test]
+    fn only_turns_that_map_the_part_onto_itself_are_tried() {
+        let sheet = scanned_sheet();
+        let flip = half(Vector3::x(), Vector3::zeros());
+        let about_view = half(Vector3::z(), Vector3::zeros());
+        // About the long axis, through a line 20 mm off it: the turned sheet lies beside
+        // itself, a pose nobody would mistake for the part.
+        let beside = half(Vector3::x(), Vector3::new(0.0, 20.0, 0.0));
+        let kept = self_matching_turns(&sheet, vec![flip, beside, about_view]).unwrap();
+        assert_eq!(kept, vec![flip, about_view]);
+        assert!(self_matching_turns(&sheet, Vec::new()).unwrap().is_empty());
+    }
+
     #[test]
     fn a_scan_cannot_tell_a_turn_that_fits_it_upside_down() {
         let sheet = scanned_sheet();
-        let half = |axis: Vector3<f64>, through: Vector3<f64>| {
-            Translation3::from(through)
-                * UnitQuaternion::from_axis_angle(&Unit::new_normalize(axis), std::f64::consts::PI)
-                * Translation3::from(-through)
-        };
         // Upside down onto itself: the scan shows nothing that tells the two apart.
         let flip = half(Vector3::x(), Vector3::zeros());
         assert!(sheet.turn_hides_scanned_side(&flip));
