@@ -240,7 +240,10 @@ fn batched_icp_matches_pcl_when_points_with_no_target_near_come_within_reach() {
     assert!(plain.iterations > 2, "{plain:?}");
     // The strip came within reach: lowered by more than the 0.5 mm it needed.
     assert!(plain.transform[11] < -0.6, "{plain:?}");
-    assert_eq!(plain, batched, "identical transform, iterations, fitness and stop reason");
+    assert_eq!(
+        plain, batched,
+        "identical transform, iterations, fitness and stop reason"
+    );
 }
 
 fn fpfh_at(points: &[Point], keypoints: &[u32], viewpoint: Point) -> Vec<[f32; 33]> {
