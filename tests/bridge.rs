@@ -3,8 +3,8 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use binpick_pcl::{
-    Correspondence, Error, FpfhParams, IcpParams, IndexedCloud, Mat4, Point, estimate_normals,
-    estimate_normals_at, estimate_svd, match_features, reject_sample_consensus,
+    Correspondence, Error, FpfhParams, IcpOutcome, IcpParams, IndexedCloud, Mat4, Point,
+    estimate_normals, estimate_normals_at, estimate_svd, match_features, reject_sample_consensus,
     reject_sample_consensus_sweep, segment_plane, uniform_sampling, voxel_grid,
 };
 use nalgebra::{Isometry3, Matrix4, Point3, Translation3, UnitQuaternion, Vector3};
@@ -127,22 +127,8 @@ fn batched_icp_correspondences_match_pcl_exactly() {
         })
         .collect();
     let cloud = IndexedCloud::new(&target).unwrap();
-    let run = |batch, reciprocal| {
-        cloud
-            .icp(
-                &model,
-                &IcpParams {
-                    initial: to_mat4(&Isometry3::identity()),
-                    max_correspondence_distance: 8.0,
-                    max_iterations: 50,
-                    transformation_epsilon: 1e-7,
-                    batch_correspondences: batch,
-                    relative_mse: 0.0,
-                    reciprocal,
-                },
-            )
-            .unwrap()
-    };
+    let run =
+        |batch, reciprocal| icp_from_identity(&cloud, &model, 8.0, 50, 1e-7, batch, reciprocal);
     for reciprocal in [false, true] {
         let (plain, batched) = (run(false, reciprocal), run(true, reciprocal));
         assert!(plain.iterations > 5, "{plain:?}");
@@ -179,20 +165,15 @@ fn batched_icp_matches_pcl_on_a_lattice_full_of_equally_near_points() {
     let cloud = IndexedCloud::new(&target).unwrap();
     for max_correspondence_distance in [0.8, 3.0] {
         let run = |batch| {
-            cloud
-                .icp(
-                    &source,
-                    &IcpParams {
-                        initial: to_mat4(&Isometry3::identity()),
-                        max_correspondence_distance,
-                        max_iterations: 40,
-                        transformation_epsilon: 1e-9,
-                        batch_correspondences: batch,
-                        relative_mse: 0.0,
-                        reciprocal: false,
-                    },
-                )
-                .unwrap()
+            icp_from_identity(
+                &cloud,
+                &source,
+                max_correspondence_distance,
+                40,
+                1e-9,
+                batch,
+                false,
+            )
         };
         let (plain, batched) = (run(false), run(true));
         assert!(plain.iterations > 3, "{plain:?}");
@@ -220,22 +201,7 @@ fn batched_icp_matches_pcl_when_points_with_no_target_near_come_within_reach() {
         })
         .collect();
     let cloud = IndexedCloud::new(&target).unwrap();
-    let run = |batch| {
-        cloud
-            .icp(
-                &source,
-                &IcpParams {
-                    initial: to_mat4(&Isometry3::identity()),
-                    max_correspondence_distance: 1.5,
-                    max_iterations: 30,
-                    transformation_epsilon: 1e-9,
-                    batch_correspondences: batch,
-                    relative_mse: 0.0,
-                    reciprocal: false,
-                },
-            )
-            .unwrap()
-    };
+    let run = |batch| icp_from_identity(&cloud, &source, 1.5, 30, 1e-9, batch, false);
     let (plain, batched) = (run(false), run(true));
     assert!(plain.iterations > 2, "{plain:?}");
     // The strip came within reach: lowered by more than the 0.5 mm it needed.
@@ -244,6 +210,33 @@ fn batched_icp_matches_pcl_when_points_with_no_target_near_come_within_reach() {
         plain, batched,
         "identical transform, iterations, fitness and stop reason"
     );
+}
+
+/// ICP of `source` onto `cloud` from the identity, without a relative-MSE stop, with PCL's
+/// own correspondence search or (`batch`) the bridge's batched one.
+fn icp_from_identity(
+    cloud: &IndexedCloud,
+    source: &[Point],
+    max_correspondence_distance: f64,
+    max_iterations: u32,
+    transformation_epsilon: f64,
+    batch: bool,
+    reciprocal: bool,
+) -> IcpOutcome {
+    cloud
+        .icp(
+            source,
+            &IcpParams {
+                initial: to_mat4(&Isometry3::identity()),
+                max_correspondence_distance,
+                max_iterations,
+                transformation_epsilon,
+                batch_correspondences: batch,
+                relative_mse: 0.0,
+                reciprocal,
+            },
+        )
+        .unwrap()
 }
 
 fn fpfh_at(points: &[Point], keypoints: &[u32], viewpoint: Point) -> Vec<[f32; 33]> {
