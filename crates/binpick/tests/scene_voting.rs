@@ -52,6 +52,18 @@ fn bracket_scan(set_name: &str, index: usize) -> BeltScan {
 /// Scan `index` of the generalisation benchmark's set `set_name` of `kind` (seed 1), with a
 /// recognizer on `params`.
 fn set_scan(kind: PartKind, set_name: &str, index: usize, params: Params) -> BeltScan {
+    seeded_scan(kind, set_name, 1, index, params)
+}
+
+/// Scan `index` of the generalisation benchmark's set `set_name` of `kind` made with `seed`
+/// (`binpick synth generalisation --seed`), with a recognizer on `params`.
+fn seeded_scan(
+    kind: PartKind,
+    set_name: &str,
+    seed: u64,
+    index: usize,
+    params: Params,
+) -> BeltScan {
     let lib = ModelLibrary::build_for(&[kind], false).unwrap();
     let model = &lib.models[0];
     let set = generalisation_sets(Some(index + 1))
@@ -59,7 +71,7 @@ fn set_scan(kind: PartKind, set_name: &str, index: usize, params: Params) -> Bel
         .find(|s| s.name == set_name)
         .unwrap();
     let scan =
-        binpick_synth::generalisation::make_set_scene(&lib, &[model], &set, 1, index).unwrap();
+        binpick_synth::generalisation::make_set_scene(&lib, &[model], &set, seed, index).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let stl: PathBuf = dir.path().join("part.stl");
     write_stl(&stl, &model.mesh).unwrap();
@@ -143,6 +155,50 @@ fn scanned_part(kind: PartKind, s: &BeltScan) -> binpick::Part {
     let (part, _) = load_part(&pcd, Units::Millimetres, &Params::default()).unwrap();
     assert_eq!(part.source, PartSource::Scan);
     part
+}
+
+#[test]
+fn a_bracket_whose_turn_the_view_prefers_is_found_the_right_way_round() {
+    // Seed 4's `brackets-bin-2mm-006`: a bracket in full view whose half turn the 2 mm view
+    // scores 1.4 % above its right pose (the right pose's outline sees through 8 cells, the
+    // turn's longer flange lies in a shadow). Where the two differ, at the flanges' ends,
+    // the scan lies much closer to the right pose, and the scene explanation's pick is
+    // settled there.
+    let s = seeded_scan(
+        PartKind::Bracket,
+        "brackets-bin-2mm",
+        4,
+        6,
+        Params::default(),
+    );
+    let r = s.recognizer.recognize(&s.scene).unwrap();
+    let near = |truth: &Isometry3<f64>, d: &binpick::Detection| {
+        pose::translation_error_mm(truth, &d.pose) < 0.1 * s.diameter_mm
+    };
+    let right = |truth: &Isometry3<f64>| {
+        r.detections
+            .iter()
+            .any(|d| near(truth, d) && pose::rotation_error_deg(truth, &d.pose) < 10.0)
+    };
+    let turned: Vec<&Isometry3<f64>> = s
+        .pickable
+        .iter()
+        .filter(|t| {
+            r.detections
+                .iter()
+                .any(|d| near(t, d) && pose::rotation_error_deg(t, &d.pose) > 150.0)
+        })
+        .collect();
+    assert!(
+        turned.is_empty(),
+        "pickable brackets reported turned: {turned:?}"
+    );
+    let found = s.pickable.iter().filter(|t| right(t)).count();
+    assert!(
+        found + 1 >= s.pickable.len(),
+        "{found} of {} pickable brackets found",
+        s.pickable.len()
+    );
 }
 
 #[test]

@@ -43,6 +43,15 @@ use crate::stages::verify::{
     view_check, viewpoint,
 };
 
+/// A taken part and its turn differ where their surfaces lie more than this many view
+/// tolerances apart ([`SceneVoting::settle_turns`]) ...
+const TURN_APART_TOLERANCES: f64 = 0.5;
+/// ... there both must show the sensor at least this many surface points unhidden ...
+const TURN_MIN_APART_POINTS: usize = 30;
+/// ... and the turn replaces the part when its residual there is under this share of the
+/// part's.
+const TURN_CLOSER_SHARE: f64 = 0.5;
+
 /// A scene sample is explained by a taken part within this many view tolerances of its
 /// surface (later voting rounds skip it).
 const UNEXPLAINED_TOLERANCES: f64 = 2.0;
@@ -353,6 +362,7 @@ impl SceneVoting<'_> {
             offset += more.clusters.len();
             explanation = self.explain(&candidates, &verifier.support_explained, &accept)?;
         }
+        let turned_out = self.settle_turns(&verifier, &candidates, &mut explanation)?;
         report.candidates = candidates.len();
         let scores: Vec<ViewScore> = candidates.iter().map(|c| c.score.clone()).collect();
         self.tally(&explanation.rejected, &scores, &mut report);
@@ -362,13 +372,18 @@ impl SceneVoting<'_> {
             report.candidates_detail = candidates
                 .iter()
                 .zip(&explanation.rejected)
-                .map(|(c, why)| CandidateRecord {
+                .enumerate()
+                .map(|(k, (c, why))| CandidateRecord {
                     hypothesis: c.hypothesis,
                     votes: c.votes,
                     pose: binpick_cloud::pose_to_row_major(&c.pose),
                     view: view_check(&c.score),
                     explained_cells: c.score.explained,
-                    verdict: why.map_or("taken".to_owned(), |w| format!("{w:?}")),
+                    verdict: if turned_out.contains(&k) {
+                        "TurnFitsCloser".to_owned()
+                    } else {
+                        why.map_or("taken".to_owned(), |w| format!("{w:?}"))
+                    },
                 })
                 .collect();
         }
@@ -476,6 +491,89 @@ impl SceneVoting<'_> {
             .filter_map(|(c, laid)| (!laid).then_some(c))
             .collect();
         (kept, dropped)
+    }
+
+    /// A taken part against its near-symmetric turns that were acceptable but found their
+    /// surface explained by it: where the two differ (model points more than
+    /// [`TURN_APART_TOLERANCES`] apart), the scene is compared with each, point by point,
+    /// finer than the view's cells. A turn the scene confirms much more closely there
+    /// ([`TURN_CLOSER_SHARE`] of the taken part's residual) replaces it. The view cannot tell
+    /// a Z bracket from its turn when the flanges' difference (5 mm) is within a cell or two
+    /// of slack. Returns the candidates replaced.
+    fn settle_turns(
+        &self,
+        verifier: &Verifier,
+        candidates: &[Candidate],
+        explanation: &mut binpick_match::Explanation,
+    ) -> Result<Vec<usize>> {
+        let mut replaced = Vec::new();
+        if !self.params.verify.near_symmetry_variants || self.model.near_symmetries.is_empty() {
+            return Ok(replaced);
+        }
+        let v = &self.params.voting;
+        let near_mm = v.cluster_translation_diameters * self.scale.model_diameter_mm;
+        let near_rad = v.cluster_rotation_deg.to_radians();
+        let centre = self.model.centre;
+        let turn_of = |i: usize, j: usize| {
+            let (a, b) = (&candidates[i].pose, &candidates[j].pose);
+            (a * centre - b * centre).norm() < near_mm
+                && self
+                    .model
+                    .near_symmetries
+                    .iter()
+                    .any(|s| self.part.symmetries.angle(&(a * s), b) < near_rad)
+        };
+        let rivals: Vec<(usize, Vec<usize>)> = explanation
+            .taken
+            .iter()
+            .enumerate()
+            .map(|(t, &i)| {
+                let r = (0..candidates.len())
+                    .filter(|&j| {
+                        explanation.rejected[j] == Some(Rejection::Explained) && turn_of(i, j)
+                    })
+                    .collect();
+                (t, r)
+            })
+            .filter(|(_, r): &(usize, Vec<usize>)| !r.is_empty())
+            .collect();
+        if rivals.is_empty() {
+            return Ok(replaced);
+        }
+        let surface = &self.part.surface;
+        let index = binpick_match::PointIndex::new("part surface", &surface.points)
+            .map_err(matching("part surface"))?;
+        let apart = TURN_APART_TOLERANCES * self.scale.tolerance_mm;
+        let choices: Vec<Option<usize>> = rivals
+            .par_iter()
+            .map(|(t, rivals)| {
+                let i = explanation.taken[*t];
+                let pi = &candidates[i].pose;
+                rivals
+                    .iter()
+                    .filter_map(|&j| {
+                        let pj = &candidates[j].pose;
+                        let (ri, ni) =
+                            verifier.residual_where_apart(surface, &index, pi, pj, apart);
+                        let (rj, nj) =
+                            verifier.residual_where_apart(surface, &index, pj, pi, apart);
+                        (ni.min(nj) >= TURN_MIN_APART_POINTS && rj < TURN_CLOSER_SHARE * ri)
+                            .then_some((rj / ri, j))
+                    })
+                    .min_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)))
+                    .map(|(_, j)| j)
+            })
+            .collect();
+        for ((t, _), choice) in rivals.iter().zip(choices) {
+            let Some(j) = choice else { continue };
+            let i = explanation.taken[*t];
+            tracing::debug!(taken = i, turn = j, "a turn fits closer where they differ");
+            explanation.taken[*t] = j;
+            explanation.rejected[j] = None;
+            explanation.rejected[i] = Some(Rejection::Explained);
+            replaced.push(i);
+        }
+        Ok(replaced)
     }
 
     /// The scene samples farther than two view tolerances from every taken part's surface.

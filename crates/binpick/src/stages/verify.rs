@@ -7,7 +7,7 @@
 use nalgebra::{Isometry3, Point3, Vector3};
 
 use binpick_cloud::{Point, to_point3, transform_point};
-use binpick_match::{RangeGrid, Sensor, ViewConfig, ViewScore};
+use binpick_match::{OrientedPoints, RangeGrid, Sensor, ViewConfig, ViewScore};
 use binpick_pcl::{IcpParams, IndexedCloud};
 
 use crate::error::{Result, input, pcl};
@@ -502,6 +502,43 @@ impl<'a> Verifier<'a> {
                 OUTLIER_RESOLUTIONS * self.scale.resolution_mm,
             ),
         }
+    }
+
+    /// How closely the scene confirms the part at `pose` where it differs from the part at
+    /// `other`: over the points of `surface` (model frame, indexed by `surface_index`) the
+    /// sensor would see at `pose` unhidden by the scene and farther than `apart_mm` from the
+    /// surface at `other`, the mean squared distance to the scene truncated at the view
+    /// tolerance (mm^2), and how many such points there are.
+    pub(crate) fn residual_where_apart(
+        &self,
+        surface: &OrientedPoints,
+        surface_index: &NearestIndex,
+        pose: &Isometry3<f64>,
+        other: &Isometry3<f64>,
+        apart_mm: f64,
+    ) -> (f64, usize) {
+        let tolerance = self.scale.tolerance_mm;
+        let cap = (tolerance * tolerance) as f32;
+        let apart = (apart_mm * apart_mm) as f32;
+        let back = other.inverse() * pose;
+        let (mut sum, mut n) = (0.0f64, 0usize);
+        for i in self
+            .grid
+            .unhidden_model_points(surface, pose, &self.view, tolerance)
+        {
+            let p = &surface.points[i as usize];
+            if surface_index.nearest(&transform_point(&back, p)).1 <= apart {
+                continue;
+            }
+            sum += f64::from(
+                self.world_index
+                    .nearest(&transform_point(pose, p))
+                    .1
+                    .min(cap),
+            );
+            n += 1;
+        }
+        (if n == 0 { 0.0 } else { sum / n as f64 }, n)
     }
 
     /// The view tolerance, mm.
