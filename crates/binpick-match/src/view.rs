@@ -767,7 +767,7 @@ impl RangeGrid {
         pose: &Isometry3<f64>,
         config: &ViewConfig,
     ) -> Vec<u32> {
-        self.model_points_in_view(model, pose, config, None)
+        self.model_points_in_view(model, pose, config, None, false)
     }
 
     /// [`Self::visible_model_points`] less those the scene hides: where the scene's surface
@@ -781,7 +781,20 @@ impl RangeGrid {
         config: &ViewConfig,
         margin_mm: f64,
     ) -> Vec<u32> {
-        self.model_points_in_view(model, pose, config, Some(margin_mm))
+        self.model_points_in_view(model, pose, config, Some(margin_mm), false)
+    }
+
+    /// [`Self::unhidden_model_points`] less those the sensor measured nothing around (in
+    /// their cell and the eight beside it: a shadow), where the scan says nothing about the
+    /// model's surface. A cell of slack keeps a part's edge laid past the scan's.
+    pub fn measured_model_points(
+        &self,
+        model: &OrientedPoints,
+        pose: &Isometry3<f64>,
+        config: &ViewConfig,
+        margin_mm: f64,
+    ) -> Vec<u32> {
+        self.model_points_in_view(model, pose, config, Some(margin_mm), true)
     }
 
     fn model_points_in_view(
@@ -790,6 +803,7 @@ impl RangeGrid {
         pose: &Isometry3<f64>,
         config: &ViewConfig,
         hidden_margin_mm: Option<f64>,
+        measured_only: bool,
     ) -> Vec<u32> {
         let cos_limit = config.max_incidence_deg.to_radians().cos();
         let mut facing = Vec::new();
@@ -809,6 +823,15 @@ impl RangeGrid {
                 None => true,
             })
             .filter(|f| !hidden(f))
+            .filter(|f| {
+                !measured_only
+                    || (-1..=1).any(|dr| {
+                        (-1..=1).any(|dc| {
+                            self.cell_index(f.col + dc, f.row + dr)
+                                .is_some_and(|k| !self.near[k].is_nan())
+                        })
+                    })
+            })
             .map(|f| f.index)
             .collect()
     }
@@ -1097,6 +1120,33 @@ pub(crate) mod tests {
         assert_eq!(
             grid.unhidden_model_points(&tile, &pose, &view, 6.0).len(),
             1600
+        );
+    }
+
+    #[test]
+    fn model_points_where_the_sensor_measured_nothing_around_are_left_out() {
+        // The scan of a 40 x 40 mm tile stops at row 30 (the rest in a shadow).
+        let scene = rows(0.0, 0..30);
+        let (grid, view) = top_view_grid(&scene, &vec![false; scene.len()]);
+        let tile = OrientedPoints {
+            points: rows(0.0, 0..40),
+            normals: vec![[0.0, 0.0, 1.0]; 40 * 40],
+        };
+        let pose = Isometry3::identity();
+        assert_eq!(
+            grid.unhidden_model_points(&tile, &pose, &view, 1.5).len(),
+            1600,
+            "nothing hides the tile"
+        );
+        let measured = grid.measured_model_points(&tile, &pose, &view, 1.5);
+        assert!(
+            measured.iter().all(|i| i / 40 <= 30),
+            "rows more than a cell past the scan's last left out"
+        );
+        assert_eq!(
+            measured.len(),
+            31 * 40,
+            "the row beside the scan's edge kept"
         );
     }
 

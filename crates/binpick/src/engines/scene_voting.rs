@@ -12,6 +12,7 @@
 //!     judge against the view: explained, occluded, free space, missing
 //!   acceptable ones also turned by the part's near-symmetries, refined and judged
 //!   parts = greedy scene explanation: most newly explained surface first          (Aldoma 2012)
+//!   each part against its acceptable turns, point by point where they differ
 //!   each part: the thesis's validators on its visible surface, its canonical pose
 //! ```
 
@@ -39,14 +40,21 @@ use crate::stages::hypotheses::{
 use crate::stages::part::Part;
 use crate::stages::rank::height_mm;
 use crate::stages::verify::{
-    Probe, SceneSurface, Verifier, bounding_planes, edge_on_cells, resolve_sensor, sunk_depth_mm,
-    view_check, viewpoint,
+    Probe, SceneSurface, SeenSurface, Verifier, bounding_planes, edge_on_cells, resolve_sensor,
+    sunk_depth_mm, view_check, viewpoint,
 };
 
-/// A taken part and its turn differ where their surfaces lie more than this many view
-/// tolerances apart ([`SceneVoting::settle_turns`]) ...
-const TURN_APART_TOLERANCES: f64 = 0.5;
-/// ... there both must show the sensor at least this many surface points unhidden ...
+/// The turns' gap ([`turn_gap_mm`]) is measured on this many of the part's surface points
+/// ...
+const TURN_GAP_POINTS: usize = 4000;
+/// ... at this percentile of their distances to the surface.
+const TURN_GAP_PERCENTILE: f64 = 0.99;
+/// A taken part and its turn differ where their surfaces lie more than this share of the
+/// turns' gap or of the view tolerance apart, whichever is more
+/// ([`SceneVoting::settle_turns`]; at 0.5 mm a tolerance is 1.3 mm, and a pose ICP left a few
+/// degrees tilted differs from its turn over much of the part by more than half that) ...
+const TURN_APART_SHARE: f64 = 0.5;
+/// ... there both must show the sensor at least this many surface points, unhidden ...
 const TURN_MIN_APART_POINTS: usize = 30;
 /// ... and the turn replaces the part when its residual there is under this share of the
 /// part's.
@@ -219,16 +227,28 @@ impl SceneVoting<'_> {
         let (pose, score) = judge(pose)?;
         // As in `detect`, the pose is judged by the scene explanation (its outline is checked
         // there) and competes with its near-symmetric turns: a turn that explains the scene
-        // better wins (a half-turned bracket loses to the right one).
-        let mut scores = vec![score.clone()];
+        // better wins (a half-turned bracket loses to the right one), and they are settled
+        // where they differ.
+        let candidate = |pose: Isometry3<f64>, score: ViewScore, turned: bool| Candidate {
+            hypothesis: 0,
+            votes: 0,
+            turned,
+            initial: pose,
+            pose,
+            icp: icp_report(None, false),
+            score,
+        };
+        let mut family = vec![candidate(pose, score.clone(), false)];
         if accept.rejection(&score).is_none() && self.params.verify.near_symmetry_variants {
             for s in &self.model.near_symmetries {
-                scores.push(judge(&(pose * s))?.1);
+                let (turned, turned_score) = judge(&(pose * s))?;
+                family.push(candidate(turned, turned_score, true));
             }
         }
         // Nobody voted for the given pose or its turns: the best gain wins.
+        let scores: Vec<ViewScore> = family.iter().map(|c| c.score.clone()).collect();
         let votes = vec![0; scores.len()];
-        let explanation = explain_scene(
+        let mut explanation = explain_scene(
             &scores,
             &votes,
             |_, _| false,
@@ -236,8 +256,13 @@ impl SceneVoting<'_> {
             accept,
         )
         .map_err(matching("scene explanation"))?;
+        let replaced = self.settle_turns(verifier, &family, &mut explanation)?;
         let refusal = match (explanation.rejected[0], explanation.taken.first()) {
             (None, _) => None,
+            (Some(Rejection::Explained), Some(&k)) if replaced.contains(&0) => Some(format!(
+                "NearSymmetry: its near-symmetric turn {k} fits the scan closer where the two \
+                 differ"
+            )),
             (Some(Rejection::Explained), Some(&k)) => Some(format!(
                 "NearSymmetry: its near-symmetric turn {} explains more of the scene ({} \
                  cells against {})",
@@ -495,11 +520,12 @@ impl SceneVoting<'_> {
 
     /// A taken part against its near-symmetric turns that were acceptable but found their
     /// surface explained by it: where the two differ (model points more than
-    /// [`TURN_APART_TOLERANCES`] apart), the scene is compared with each, point by point,
-    /// finer than the view's cells. A turn the scene confirms much more closely there
-    /// ([`TURN_CLOSER_SHARE`] of the taken part's residual) replaces it. The view cannot tell
-    /// a Z bracket from its turn when the flanges' difference (5 mm) is within a cell or two
-    /// of slack. Returns the candidates replaced.
+    /// [`TURN_APART_SHARE`] of the turns' gap or of the tolerance apart), the scene is
+    /// compared with each, point by point, finer than the view's cells. A turn the scene
+    /// confirms much more closely there ([`TURN_CLOSER_SHARE`] of the taken part's residual)
+    /// replaces it. The view cannot tell a Z bracket from its turn when the flanges'
+    /// difference (5 mm) is within a cell or two of slack. A part seen edge on is left as
+    /// taken. Returns the candidates replaced.
     fn settle_turns(
         &self,
         verifier: &Verifier,
@@ -514,6 +540,7 @@ impl SceneVoting<'_> {
         let near_mm = v.cluster_translation_diameters * self.scale.model_diameter_mm;
         let near_rad = v.cluster_rotation_deg.to_radians();
         let centre = self.model.centre;
+        let edge_on = edge_on_cells(self.scale);
         let turn_of = |i: usize, j: usize| {
             let (a, b) = (&candidates[i].pose, &candidates[j].pose);
             (a * centre - b * centre).norm() < near_mm
@@ -527,6 +554,10 @@ impl SceneVoting<'_> {
             .taken
             .iter()
             .enumerate()
+            // A part seen edge on is a strip whose ends are all outline: the scan's edge
+            // falls beside the model's as often as on it (`edge_on_min_fit`), and the ends
+            // are where a part and its turn differ.
+            .filter(|&(_, &i)| f64::from(candidates[i].score.visible) > edge_on)
             .map(|(t, &i)| {
                 let r = (0..candidates.len())
                     .filter(|&j| {
@@ -543,31 +574,63 @@ impl SceneVoting<'_> {
         let surface = &self.part.surface;
         let index = binpick_match::PointIndex::new("part surface", &surface.points)
             .map_err(matching("part surface"))?;
-        let apart = TURN_APART_TOLERANCES * self.scale.tolerance_mm;
-        let choices: Vec<Option<usize>> = rivals
+        let apart = TURN_APART_SHARE
+            * turn_gap_mm(&self.model.near_symmetries, surface, &index)
+                .max(self.scale.tolerance_mm);
+        tracing::trace!(apart_mm = apart, "turns settled where they differ by more");
+        // What the sensor sees of each pose involved, once.
+        let mut involved: Vec<usize> = rivals
+            .iter()
+            .flat_map(|(t, r)| std::iter::once(explanation.taken[*t]).chain(r.iter().copied()))
+            .collect();
+        involved.sort_unstable();
+        involved.dedup();
+        let seen: Vec<SeenSurface> = involved
+            .par_iter()
+            .map(|&k| verifier.seen_surface(surface, &candidates[k].pose))
+            .collect();
+        let seen_of = |k: usize| -> &SeenSurface {
+            // `involved` holds every candidate asked for.
+            &seen[involved.binary_search(&k).unwrap_or_default()]
+        };
+        let choices: Vec<Option<(f64, usize)>> = rivals
             .par_iter()
             .map(|(t, rivals)| {
                 let i = explanation.taken[*t];
-                let pi = &candidates[i].pose;
-                rivals
-                    .iter()
-                    .filter_map(|&j| {
-                        let pj = &candidates[j].pose;
-                        let (ri, ni) =
-                            verifier.residual_where_apart(surface, &index, pi, pj, apart);
-                        let (rj, nj) =
-                            verifier.residual_where_apart(surface, &index, pj, pi, apart);
-                        (ni.min(nj) >= TURN_MIN_APART_POINTS && rj < TURN_CLOSER_SHARE * ri)
-                            .then_some((rj / ri, j))
-                    })
-                    .min_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)))
-                    .map(|(_, j)| j)
+                let mut best: Option<(f64, usize)> = None;
+                for &j in rivals {
+                    let (ri, ni) = verifier.residual_apart_from(
+                        seen_of(i),
+                        &index,
+                        &candidates[j].pose,
+                        apart,
+                    );
+                    let (rj, nj) = verifier.residual_apart_from(
+                        seen_of(j),
+                        &index,
+                        &candidates[i].pose,
+                        apart,
+                    );
+                    tracing::trace!(taken = i, turn = j, ri, ni, rj, nj, "where they differ");
+                    if ni.min(nj) >= TURN_MIN_APART_POINTS
+                        && rj < TURN_CLOSER_SHARE * ri
+                        && best.is_none_or(|(b, _)| rj / ri < b)
+                    {
+                        best = Some((rj / ri, j));
+                    }
+                }
+                best
             })
             .collect();
         for ((t, _), choice) in rivals.iter().zip(choices) {
-            let Some(j) = choice else { continue };
+            let Some((share, j)) = choice else { continue };
             let i = explanation.taken[*t];
-            tracing::debug!(taken = i, turn = j, "a turn fits closer where they differ");
+            tracing::debug!(
+                taken = i,
+                turn = j,
+                residual_share = share,
+                "a turn fits closer where they differ"
+            );
             explanation.taken[*t] = j;
             explanation.rejected[j] = None;
             explanation.rejected[i] = Some(Rejection::Explained);
@@ -931,4 +994,34 @@ fn icp_report(icp: Option<&binpick_pcl::IcpOutcome>, adopted: bool) -> IcpReport
         polished: false,
         error: None,
     }
+}
+
+/// How far the part's near-symmetric `turns` lie off its `surface` (model frame, indexed by
+/// `index`) where they differ most: the largest over the turns of the
+/// [`TURN_GAP_PERCENTILE`] of the distances from the turned surface ([`TURN_GAP_POINTS`]
+/// of its points) to the surface, mm;
+/// `model inspect`'s gap (3.6 mm for the Z bracket, whose flanges differ by 5 mm).
+fn turn_gap_mm(
+    turns: &[Isometry3<f64>],
+    surface: &OrientedPoints,
+    index: &binpick_match::PointIndex,
+) -> f64 {
+    turns
+        .iter()
+        .map(|s| {
+            let mut d: Vec<f32> = binpick_cloud::strided_points(&surface.points, TURN_GAP_POINTS)
+                .iter()
+                .map(|p| {
+                    let q = s * p;
+                    index.nearest(&[q.x as f32, q.y as f32, q.z as f32]).1
+                })
+                .collect();
+            if d.is_empty() {
+                return 0.0;
+            }
+            let k = (TURN_GAP_PERCENTILE * (d.len() - 1) as f64) as usize;
+            d.select_nth_unstable_by(k, f32::total_cmp);
+            f64::from(d[k]).sqrt()
+        })
+        .fold(0.0, f64::max)
 }

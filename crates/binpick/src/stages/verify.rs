@@ -156,6 +156,10 @@ pub(crate) struct Verifier<'a> {
     pub support_explained: Vec<bool>,
 }
 
+/// The part's surface points the sensor sees at one pose ([`Verifier::seen_surface`]), scene
+/// frame.
+pub(crate) struct SeenSurface(Vec<Point>);
+
 /// The thesis's validators of a pose, on the visible model surface.
 pub(crate) struct ThesisScores {
     /// Euclidean score, mm^2 (3.1.1).
@@ -504,39 +508,45 @@ impl<'a> Verifier<'a> {
         }
     }
 
-    /// How closely the scene confirms the part at `pose` where it differs from the part at
-    /// `other`: over the points of `surface` (model frame, indexed by `surface_index`) the
-    /// sensor would see at `pose` unhidden by the scene and farther than `apart_mm` from the
-    /// surface at `other`, the mean squared distance to the scene truncated at the view
-    /// tolerance (mm^2), and how many such points there are.
-    pub(crate) fn residual_where_apart(
+    /// What the sensor sees of the part's `surface` (model frame) at `pose`: the points it
+    /// would see unhidden by the scene, in a cell it measured or beside one (a shadow
+    /// confirms nothing and contradicts nothing).
+    pub(crate) fn seen_surface(
         &self,
         surface: &OrientedPoints,
-        surface_index: &NearestIndex,
         pose: &Isometry3<f64>,
+    ) -> SeenSurface {
+        let tolerance = self.scale.tolerance_mm;
+        SeenSurface(
+            self.grid
+                .measured_model_points(surface, pose, &self.view, tolerance)
+                .into_iter()
+                .map(|i| transform_point(pose, &surface.points[i as usize]))
+                .collect(),
+        )
+    }
+
+    /// How closely the scan confirms the points of `seen` that lie farther than `apart_mm`
+    /// from the part's surface at `other` (model frame indexed by `surface_index`): their
+    /// mean squared distance to the scan truncated at the view tolerance (mm^2), and how
+    /// many there are.
+    pub(crate) fn residual_apart_from(
+        &self,
+        seen: &SeenSurface,
+        surface_index: &NearestIndex,
         other: &Isometry3<f64>,
         apart_mm: f64,
     ) -> (f64, usize) {
         let tolerance = self.scale.tolerance_mm;
         let cap = (tolerance * tolerance) as f32;
         let apart = (apart_mm * apart_mm) as f32;
-        let back = other.inverse() * pose;
+        let back = other.inverse();
         let (mut sum, mut n) = (0.0f64, 0usize);
-        for i in self
-            .grid
-            .unhidden_model_points(surface, pose, &self.view, tolerance)
-        {
-            let p = &surface.points[i as usize];
-            if surface_index.nearest(&transform_point(&back, p)).1 <= apart {
-                continue;
+        for q in &seen.0 {
+            if surface_index.nearest(&transform_point(&back, q)).1 > apart {
+                sum += f64::from(self.world_index.nearest(q).1.min(cap));
+                n += 1;
             }
-            sum += f64::from(
-                self.world_index
-                    .nearest(&transform_point(pose, p))
-                    .1
-                    .min(cap),
-            );
-            n += 1;
         }
         (if n == 0 { 0.0 } else { sum / n as f64 }, n)
     }
