@@ -1,5 +1,7 @@
 //! Exact neighbour queries over a fixed point set (kiddo's immutable kd-tree).
 
+use std::ops::ControlFlow;
+
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 
 use crate::{MatchError, P3};
@@ -210,11 +212,17 @@ impl Grid {
         (c[0] * self.dims[1] + c[1]) * self.dims[2] + c[2]
     }
 
-    /// The `want` smallest squared distances from `q` to `points`, ascending, into `best`.
-    /// Rings of cells around `q`'s cell are searched until every point outside them is
-    /// farther than the `want`-th found.
-    fn nearest_squared(&self, points: &[P3], q: &P3, want: usize, best: &mut Vec<f32>) {
-        best.clear();
+    /// Visits the cells around `q`'s cell ring by ring (ring `r` is the shell of cells `r`
+    /// away in the largest axis), calling `visit` with each cell's point indices, until
+    /// `visit` says stop or `enough(outside)` holds, where every point outside the rings
+    /// searched lies at least `outside` mm from `q`.
+    fn search_rings<S>(
+        &self,
+        q: &P3,
+        state: &mut S,
+        visit: impl Fn(&mut S, &[u32]) -> ControlFlow<()>,
+        enough: impl Fn(&S, f64) -> bool,
+    ) {
         let c = self.cell_of(q);
         let reach = (0..3)
             .map(|a| c[a].max(self.dims[a] - 1 - c[a]))
@@ -232,43 +240,145 @@ impl Grid {
                         }
                         let cell = self.index([x, y, z]);
                         let (s, e) = (self.start[cell] as usize, self.start[cell + 1] as usize);
-                        for &i in &self.order[s..e] {
-                            let p = &points[i as usize];
-                            let d = (p[0] - q[0]) * (p[0] - q[0])
-                                + (p[1] - q[1]) * (p[1] - q[1])
-                                + (p[2] - q[2]) * (p[2] - q[2]);
-                            if best.len() < want || d < best[want - 1] {
-                                let at = best.partition_point(|&b| b <= d);
-                                best.insert(at, d);
-                                best.truncate(want);
-                            }
+                        if visit(state, &self.order[s..e]).is_break() {
+                            return;
                         }
                     }
                 }
             }
-            if best.len() == want {
-                // Every point outside the searched block lies at least this far from q.
-                let outside = (0..3)
-                    .map(|a| {
-                        let below = if c[a] > r {
-                            f64::from(q[a]) - (self.lo[a] + (c[a] - r) as f64 * self.cell)
-                        } else {
-                            f64::INFINITY
-                        };
-                        let above = if c[a] + r + 1 < self.dims[a] {
-                            self.lo[a] + (c[a] + r + 1) as f64 * self.cell - f64::from(q[a])
-                        } else {
-                            f64::INFINITY
-                        };
-                        below.min(above)
-                    })
-                    .fold(f64::INFINITY, f64::min);
-                // A margin for the float squares: a point at the bound never rounds below it.
-                if f64::from(best[want - 1]) < outside * outside * (1.0 - 1e-4) {
-                    return;
-                }
+            // Every point outside the searched block lies at least this far from q.
+            let outside = (0..3)
+                .map(|a| {
+                    let below = if c[a] > r {
+                        f64::from(q[a]) - (self.lo[a] + (c[a] - r) as f64 * self.cell)
+                    } else {
+                        f64::INFINITY
+                    };
+                    let above = if c[a] + r + 1 < self.dims[a] {
+                        self.lo[a] + (c[a] + r + 1) as f64 * self.cell - f64::from(q[a])
+                    } else {
+                        f64::INFINITY
+                    };
+                    below.min(above)
+                })
+                .fold(f64::INFINITY, f64::min);
+            if enough(state, outside) {
+                return;
             }
         }
+    }
+
+    /// The `want` smallest squared distances from `q` to `points`, ascending, into `best`.
+    fn nearest_squared(&self, points: &[P3], q: &P3, want: usize, best: &mut Vec<f32>) {
+        best.clear();
+        self.search_rings(
+            q,
+            best,
+            |best, cell| {
+                for &i in cell {
+                    let d = squared_distance(&points[i as usize], q);
+                    if best.len() < want || d < best[want - 1] {
+                        let at = best.partition_point(|&b| b <= d);
+                        best.insert(at, d);
+                        best.truncate(want);
+                    }
+                }
+                ControlFlow::Continue(())
+            },
+            // A margin for the float squares: a point at the bound never rounds below it.
+            |best, outside| {
+                best.len() == want && f64::from(best[want - 1]) < outside * outside * (1.0 - 1e-4)
+            },
+        );
+    }
+}
+
+/// Squared distance summed as kiddo sums it (x, then y, then z), so that answers found on a
+/// grid are the kd-tree's bit for bit.
+fn squared_distance(p: &P3, q: &P3) -> f32 {
+    (p[0] - q[0]) * (p[0] - q[0]) + (p[1] - q[1]) * (p[1] - q[1]) + (p[2] - q[2]) * (p[2] - q[2])
+}
+
+/// Exact nearest-point queries on a uniform grid: for a dense surface asked about points
+/// on or near it (a part's surface at another pose), where the answer is a cell or two
+/// away and "is any point within r" stops at the first one found. Distances are
+/// [`PointIndex`]'s bit for bit.
+pub struct GridIndex {
+    grid: Grid,
+    points: Vec<P3>,
+    lo: [f64; 3],
+    hi: [f64; 3],
+}
+
+impl std::fmt::Debug for GridIndex {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GridIndex")
+            .field("len", &self.points.len())
+            .finish()
+    }
+}
+
+impl GridIndex {
+    /// Indexes `points` (non-empty, finite).
+    pub fn new(what: &'static str, points: &[P3]) -> Result<Self, MatchError> {
+        if points.is_empty() {
+            return Err(MatchError::TooFewPoints {
+                what,
+                points: 0,
+                needed: 1,
+            });
+        }
+        if points.iter().any(|p| !p.iter().all(|c| c.is_finite())) {
+            return Err(MatchError::NonFinite { what });
+        }
+        let (lo, hi) = bounds(points);
+        Ok(Self {
+            grid: Grid::new(points),
+            points: points.to_vec(),
+            lo,
+            hi,
+        })
+    }
+
+    /// Squared distance to the nearest point, mm^2 ([`PointIndex::nearest`]'s).
+    pub fn nearest_squared(&self, q: &P3) -> f32 {
+        let mut best = Vec::with_capacity(2);
+        self.grid.nearest_squared(&self.points, q, 1, &mut best);
+        best[0]
+    }
+
+    /// Whether some point lies within `radius_squared` (mm^2) of `q`: exactly whether
+    /// [`GridIndex::nearest_squared`] is at most it.
+    pub fn any_within(&self, q: &P3, radius_squared: f32) -> bool {
+        let r2 = f64::from(radius_squared);
+        // Far outside the box: nothing near (with the float squares' margin).
+        let gap2: f64 = (0..3)
+            .map(|a| {
+                let x = f64::from(q[a]);
+                let d = (self.lo[a] - x).max(x - self.hi[a]).max(0.0);
+                d * d
+            })
+            .sum();
+        if gap2 * (1.0 - 1e-4) > r2 {
+            return false;
+        }
+        let mut found = false;
+        self.grid.search_rings(
+            q,
+            &mut found,
+            |found, cell| {
+                *found = cell
+                    .iter()
+                    .any(|&i| squared_distance(&self.points[i as usize], q) <= radius_squared);
+                if *found {
+                    ControlFlow::Break(())
+                } else {
+                    ControlFlow::Continue(())
+                }
+            },
+            |_, outside| r2 < outside * outside * (1.0 - 1e-4),
+        );
+        found
     }
 }
 
@@ -344,5 +454,61 @@ mod tests {
         }
         assert!(kth_nearest_distinct_on_grid(&[], &[], 8).is_err());
         assert!(kth_nearest_distinct_on_grid(&[[f32::NAN, 0.0, 0.0]], &[], 8).is_err());
+    }
+
+    #[test]
+    fn the_grid_index_answers_as_the_kd_tree_near_and_far_from_a_surface() {
+        let mut s = 0x2545_f491_4f6c_dd1du64;
+        // A bent sheet, 3 mm thick, sampled densely: a part's surface.
+        let mut sheet: Vec<P3> = (0..30_000)
+            .map(|_| {
+                let (u, v, w) = (80.0 * unit(&mut s), 40.0 * unit(&mut s), 3.0 * unit(&mut s));
+                if u < 50.0 {
+                    [u, v, w]
+                } else {
+                    [50.0 + w, v, u - 50.0]
+                }
+            })
+            .collect();
+        sheet.extend([[0.0, 0.0, 0.0]; 3]); // repeated points
+        let tree = PointIndex::new("sheet", &sheet).unwrap();
+        let grid = GridIndex::new("sheet", &sheet).unwrap();
+        // Queries on it, jittered off it by up to 8 mm, and far outside its box.
+        let mut queries: Vec<P3> = sheet
+            .iter()
+            .step_by(11)
+            .map(|p| {
+                let j = 8.0 * unit(&mut s);
+                [
+                    p[0] + j * (unit(&mut s) - 0.5),
+                    p[1],
+                    p[2] + j * (unit(&mut s) - 0.5),
+                ]
+            })
+            .collect();
+        queries.extend([[-3.0, -2.0, -1.0], [500.0, 20.0, 0.0], [-1e4, 1e4, 3.0]]);
+        let (mut near, mut far) = (0, 0);
+        for q in &queries {
+            let d = tree.nearest(q).1;
+            assert_eq!(grid.nearest_squared(q).to_bits(), d.to_bits(), "{q:?}");
+            for r2 in [
+                0.25f32,
+                2.25,
+                6.0,
+                d,
+                f32::from_bits(d.to_bits().saturating_sub(1)),
+            ] {
+                assert_eq!(grid.any_within(q, r2), d <= r2, "{q:?} within {r2}");
+            }
+            if grid.any_within(q, 2.25) {
+                near += 1;
+            } else {
+                far += 1;
+            }
+        }
+        // Both answers asked for many times (not all one way).
+        assert!(near > 200 && far > 200, "near {near}, far {far}");
+        assert!(GridIndex::new("sheet", &[]).is_err());
+        assert!(GridIndex::new("sheet", &[[0.0, f32::INFINITY, 0.0]]).is_err());
     }
 }

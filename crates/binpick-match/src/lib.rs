@@ -20,7 +20,7 @@ pub mod ppf;
 pub mod view;
 
 pub use explain::{ExplainConfig, Explanation, Rejection, explain_scene};
-pub use index::PointIndex;
+pub use index::{GridIndex, PointIndex};
 pub use poses::{PoseCluster, PoseClustering, Symmetries, cluster_poses};
 pub use ppf::{PpfConfig, PpfModel, Vote, VotingConfig};
 pub use view::{NEIGHBOUR_FIT_WEIGHT, RangeGrid, Sensor, ViewConfig, ViewScore};

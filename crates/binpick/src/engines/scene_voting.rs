@@ -572,7 +572,7 @@ impl SceneVoting<'_> {
             return Ok(replaced);
         }
         let surface = &self.part.surface;
-        let index = binpick_match::PointIndex::new("part surface", &surface.points)
+        let index = binpick_match::GridIndex::new("part surface", &surface.points)
             .map_err(matching("part surface"))?;
         let apart = TURN_APART_SHARE
             * turn_gap_mm(&self.model.near_symmetries, surface, &index)
@@ -1004,7 +1004,7 @@ fn icp_report(icp: Option<&binpick_pcl::IcpOutcome>, adopted: bool) -> IcpReport
 fn turn_gap_mm(
     turns: &[Isometry3<f64>],
     surface: &OrientedPoints,
-    index: &binpick_match::PointIndex,
+    index: &binpick_match::GridIndex,
 ) -> f64 {
     turns
         .iter()
@@ -1013,7 +1013,7 @@ fn turn_gap_mm(
                 .iter()
                 .map(|p| {
                     let q = s * p;
-                    index.nearest(&[q.x as f32, q.y as f32, q.z as f32]).1
+                    index.nearest_squared(&[q.x as f32, q.y as f32, q.z as f32])
                 })
                 .collect();
             if d.is_empty() {

@@ -533,7 +533,7 @@ impl<'a> Verifier<'a> {
     pub(crate) fn residual_apart_from(
         &self,
         seen: &SeenSurface,
-        surface_index: &NearestIndex,
+        surface_index: &binpick_match::GridIndex,
         other: &Isometry3<f64>,
         apart_mm: f64,
     ) -> (f64, usize) {
@@ -543,7 +543,7 @@ impl<'a> Verifier<'a> {
         let back = other.inverse();
         let (mut sum, mut n) = (0.0f64, 0usize);
         for q in &seen.0 {
-            if surface_index.nearest(&transform_point(&back, q)).1 > apart {
+            if !surface_index.any_within(&transform_point(&back, q), apart) {
                 sum += f64::from(self.world_index.nearest(q).1.min(cap));
                 n += 1;
             }
