@@ -20,19 +20,25 @@ impl std::fmt::Debug for PointIndex {
     }
 }
 
+/// Refuses an empty or non-finite point set (`what` names it).
+fn indexable(what: &'static str, points: &[P3]) -> Result<(), MatchError> {
+    if points.is_empty() {
+        return Err(MatchError::TooFewPoints {
+            what,
+            points: 0,
+            needed: 1,
+        });
+    }
+    if points.iter().any(|p| !p.iter().all(|c| c.is_finite())) {
+        return Err(MatchError::NonFinite { what });
+    }
+    Ok(())
+}
+
 impl PointIndex {
     /// Indexes `points` (non-empty, finite).
     pub fn new(what: &'static str, points: &[P3]) -> Result<Self, MatchError> {
-        if points.is_empty() {
-            return Err(MatchError::TooFewPoints {
-                what,
-                points: 0,
-                needed: 1,
-            });
-        }
-        if points.iter().any(|p| !p.iter().all(|c| c.is_finite())) {
-            return Err(MatchError::NonFinite { what });
-        }
+        indexable(what, points)?;
         let tree = ImmutableKdTree::new_from_slice(points).map_err(|e| MatchError::Index {
             what,
             message: format!("{e:?}"),
@@ -321,16 +327,7 @@ impl std::fmt::Debug for GridIndex {
 impl GridIndex {
     /// Indexes `points` (non-empty, finite).
     pub fn new(what: &'static str, points: &[P3]) -> Result<Self, MatchError> {
-        if points.is_empty() {
-            return Err(MatchError::TooFewPoints {
-                what,
-                points: 0,
-                needed: 1,
-            });
-        }
-        if points.iter().any(|p| !p.iter().all(|c| c.is_finite())) {
-            return Err(MatchError::NonFinite { what });
-        }
+        indexable(what, points)?;
         let (lo, hi) = bounds(points);
         Ok(Self {
             grid: Grid::new(points),
