@@ -573,6 +573,12 @@ stage_config! {
         /// correspondence searches but gave 0.03 more false detections per scan over seeds
         /// 1-4 (README, Speed, "Seventh pass").
         refine_relative_mse: f64 = 1e-4, within(0.0, 0.1, "");
+        /// The two passes align only the model points the scan can confirm: not hidden by the
+        /// scene, with a measurement in their cell or beside it (a neighbour over a part, or
+        /// the scanner's shadow, leaves its points nothing of their own to pair with, and the
+        /// nearest other surface pulls the pose off the part). False aligns every point the
+        /// sensor would see (before the thirty-second pass; README, Results).
+        refine_confirmed_only: bool = true, any();
         /// After the two passes, one more fine pass on the model surface the scene does not
         /// hide (where the scene lies over the model by more than a tolerance, a neighbour
         /// does); adopted when the part fits closer without explaining less. Under its
