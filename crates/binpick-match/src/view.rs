@@ -309,6 +309,12 @@ impl ViewScore {
         ratio(self.free_space, self.visible)
     }
 
+    /// Free-space contradictions per explained cell: what the sensor saw through against
+    /// what it confirms.
+    pub fn free_space_per_explained(&self) -> f64 {
+        ratio(self.free_space, self.explained)
+    }
+
     /// Share of the explained cells explained by background.
     pub fn support_explained_ratio(&self) -> f64 {
         ratio(self.explained_by_support, self.explained)
