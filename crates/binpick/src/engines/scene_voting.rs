@@ -892,31 +892,12 @@ impl SceneVoting<'_> {
         }
         r.best_refused = best.map(|(_, i, why)| {
             let s = &scores[i];
+            let reason = refusal_reason(why, s);
             RefusedCandidate {
                 visibility: s.visibility(),
                 free_space: s.free_space_ratio(),
                 explained_cells: s.explained,
-                reason: match why {
-                    Rejection::TooLittleSurface => {
-                        "too little confirmed surface (min_explained_share)"
-                    }
-                    Rejection::LowVisibility => {
-                        "too little of its visible surface confirmed (min_visibility)"
-                    }
-                    Rejection::FreeSpace => "the sensor saw through it (max_free_space)",
-                    Rejection::BelowSupport => {
-                        "it sinks into the belt, floor or a wall (max_below_support, max_sunk_tolerances)"
-                    }
-                    Rejection::OnSupport => {
-                        "the belt, floor or a wall confirms most of it (max_explained_by_support)"
-                    }
-                    Rejection::NoOutline => {
-                        "the scene's surface carries on past its outline (max_continued)"
-                    }
-                    Rejection::PoorFit => "the scene lies too far from the model (min_fit)",
-                    Rejection::Explained => "repeats a taken part (min_new_share)",
-                }
-                .to_owned(),
+                reason,
             }
         });
     }
@@ -1024,4 +1005,56 @@ fn turn_gap_mm(
             f64::from(d[k]).sqrt()
         })
         .fold(0.0, f64::max)
+}
+
+/// Why a candidate was refused, in words, with the parameter to look at (the one line the
+/// CLI prints when nothing is found).
+fn refusal_reason(why: Rejection, s: &ViewScore) -> String {
+    match why {
+        Rejection::TooLittleSurface => "too little confirmed surface (min_explained_share)".into(),
+        Rejection::LowVisibility => {
+            "too little of its visible surface confirmed (min_visibility)".into()
+        }
+        // The rule reads free space per confirmed cell; `RefusedCandidate::free_space` is
+        // a share of the whole visible surface, as in every view check.
+        Rejection::FreeSpace => format!(
+            "the sensor saw through {:.1} cells per 100 it confirms (max_free_space)",
+            100.0 * s.free_space_per_explained()
+        ),
+        Rejection::BelowSupport => {
+            "it sinks into the belt, floor or a wall (max_below_support, max_sunk_tolerances)"
+                .into()
+        }
+        Rejection::OnSupport => {
+            "the belt, floor or a wall confirms most of it (max_explained_by_support)".into()
+        }
+        Rejection::NoOutline => {
+            "the scene's surface carries on past its outline (max_continued)".into()
+        }
+        Rejection::PoorFit => "the scene lies too far from the model (min_fit)".into(),
+        Rejection::Explained => "repeats a taken part (min_new_share)".into(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_refusal_for_free_space_gives_the_figure_the_rule_reads() {
+        // Half hidden: 4 cells seen through of 200 visible is 2 % of the view, but 4 per 100
+        // of the 100 the scene confirms, which is what `max_free_space` limits.
+        let s = ViewScore {
+            visible: 200,
+            explained: 100,
+            free_space: 4,
+            ..ViewScore::default()
+        };
+        assert_eq!(s.free_space_ratio(), 0.02);
+        assert_eq!(
+            refusal_reason(Rejection::FreeSpace, &s),
+            "the sensor saw through 4.0 cells per 100 it confirms (max_free_space)"
+        );
+        assert!(refusal_reason(Rejection::BelowSupport, &s).contains("max_sunk_tolerances"));
+    }
 }
