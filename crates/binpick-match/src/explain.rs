@@ -56,8 +56,8 @@ pub struct ExplainConfig {
     pub edge_on_min_fit: f64,
     /// Fewest confirmed grid cells (the part must be seen, not guessed). Range >= 1.
     pub min_explained_cells: u32,
-    /// Largest share of the model's surface that may lie behind a support plane (the part
-    /// sunk into the belt, floor or a wall). Range 0-1.
+    /// Largest share of the model's surface that may lie behind a support plane that can
+    /// carry a part (the part sunk into the belt, floor or a wall). Range 0-1.
     pub max_below_support: f64,
     /// Deepest any point of the part may lie behind a support plane, mm. Range >= 0
     /// (infinite: off).

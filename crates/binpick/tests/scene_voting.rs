@@ -718,6 +718,38 @@ fn rods_on_the_floor_refined_from_poses_nearby_are_accepted() {
 }
 
 #[test]
+fn the_top_part_of_a_pile_sticking_out_past_the_bins_rim_is_found() {
+    // Seed 5 `brackets-bin-2mm-008`: the top bracket of the pile lies in full view with its
+    // upper flange above the bin's rim. The rim is a support plane with every other part
+    // behind it, so it bounds the parts; counted as a plane a part may not lie behind
+    // (`max_below_support`), it refused every right pose of that bracket (7 % of the part
+    // more than three tolerances behind it). Only planes that can carry a part are checked
+    // now, as for the deepest point (`max_sunk_tolerances`).
+    let s = seeded_scan(
+        PartKind::Bracket,
+        "brackets-bin-2mm",
+        5,
+        8,
+        Params::default(),
+    );
+    let top = s
+        .pickable
+        .iter()
+        .max_by(|a, b| a.translation.z.total_cmp(&b.translation.z))
+        .expect("pickable brackets");
+    let found = s.recognizer.recognize(&s.scene).unwrap();
+    assert!(
+        found.detections.iter().any(|d| {
+            pose::translation_error_mm(top, &d.pose) < 0.05 * s.diameter_mm
+                && pose::rotation_error_deg(top, &d.pose) < 5.0
+        }),
+        "the top bracket at {:?} was not found: {:#?}",
+        top.translation.vector,
+        found.detections
+    );
+}
+
+#[test]
 fn a_pose_sunk_into_the_floor_does_not_take_the_place_of_the_part_it_lies_across() {
     // Seed 4 `mixed-bin-clutter-2mm-009`: a bent plate lies in full view among clutter. A
     // pose of the plate turned half-way, laid across it and a clutter part with a corner

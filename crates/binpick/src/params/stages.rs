@@ -508,8 +508,10 @@ stage_config! {
         /// Right poses see through at most 0.4 % in 95 % of the benchmark's parts, false ones
         /// 1 % in half.
         max_free_space: f64 = 0.03, within(0.0, 1.0, "");
-        /// At most this share of the part may lie behind a support plane (sunk into the
-        /// belt, floor or a bin wall by more than three view tolerances).
+        /// At most this share of the part may lie behind a support plane that can carry a
+        /// part (sunk into the belt, floor or a bin wall by more than three view
+        /// tolerances; not a bin's rim, which the top of a pile sticks out past: before the
+        /// thirty-fourth pass the rim counted too, README Results).
         max_below_support: f64 = 0.05, within(0.0, 1.0, "");
         /// No point of the part may lie deeper than this many view tolerances behind such a
         /// plane: a resting part touches it, and pose error dips a corner less than a

@@ -145,13 +145,13 @@ pub(crate) struct Verifier<'a> {
     model: &'a VotingModel,
     scale: &'a DerivedScale,
     cfg: &'a VerifyConfig,
-    /// The support planes that bound the parts, normals towards them (`bounding_planes`).
-    planes: Vec<(Vector3<f64>, f64)>,
+    /// The support planes that can carry a part (`sink_planes`), normals towards the parts:
+    /// a pose's deepest point and its share behind them are checked against these. Not a
+    /// bin's rim: parts heaped high stick out past it (its share refused the top part of a
+    /// pile, fully in view, on two of the benchmark's scans).
+    sink_planes: Vec<(Vector3<f64>, f64)>,
     /// A fixed sample of the model's surface checked against them (model frame).
     support_sample: Vec<Point3<f64>>,
-    /// The planes a part's deepest point is checked against: those that can carry a part
-    /// (`sink_planes`).
-    sink_planes: Vec<(Vector3<f64>, f64)>,
     /// Per grid cell: the scene's surface there is one of those planes. The plane explains
     /// it already; a part explaining it too gains nothing (a pose laid half on the floor).
     pub support_explained: Vec<bool>,
@@ -242,7 +242,6 @@ impl<'a> Verifier<'a> {
         });
         Ok(Self {
             support_explained,
-            planes: scene.bounding.clone(),
             support_sample: binpick_cloud::strided_points(
                 &model.dense.points,
                 SUPPORT_SAMPLE_POINTS,
@@ -498,7 +497,7 @@ impl<'a> Verifier<'a> {
     /// The view verdict of `pose`.
     pub(crate) fn score(&self, pose: &Isometry3<f64>) -> ViewScore {
         let mut s = self.grid.score(&self.model.dense, pose, &self.view);
-        if !self.planes.is_empty() {
+        if !self.sink_planes.is_empty() {
             let depth = sunk_depth_mm(self.scale);
             s.support_checked = self.support_sample.len() as u32;
             s.below_support = self
@@ -506,7 +505,7 @@ impl<'a> Verifier<'a> {
                 .iter()
                 .filter(|p| {
                     let q = pose * *p;
-                    self.planes
+                    self.sink_planes
                         .iter()
                         .any(|(n, d)| n.dot(&q.coords) + d < -depth)
                 })
