@@ -54,7 +54,9 @@ pub struct ExplainConfig {
     /// is a strip a few cells wide, all outline, where the scan's edge falls beside the
     /// model's as often as on it. Range 0-1.
     pub edge_on_min_fit: f64,
-    /// Fewest confirmed grid cells (the part must be seen, not guessed). Range >= 1.
+    /// Fewest confirmed grid cells (the part must be seen, not guessed), and fewest a
+    /// hypothesis must keep that no part taken before it claims (a support plane's cells
+    /// are its own surface seen). Range >= 1.
     pub min_explained_cells: u32,
     /// Largest share of the model's surface that may lie behind a support plane that can
     /// carry a part (the part sunk into the belt, floor or a wall). Range 0-1.
@@ -200,7 +202,9 @@ pub enum Rejection {
     NoOutline,
     /// The confirmed surface fits worse than `min_fit`.
     PoorFit,
-    /// Its surface is already explained by a part taken before it.
+    /// Its surface is already explained: less than `min_new_share` of it is new (a support
+    /// plane's cells are not), or parts taken before it leave it fewer than
+    /// `min_explained_cells` of its own.
     Explained,
 }
 
@@ -243,6 +247,8 @@ pub fn explain_scene(
         .filter(|&i| rejected[i].is_none())
         .collect();
     let mut claimed = already_explained.to_vec();
+    // Claimed by a part taken (not by a support plane alone).
+    let mut claimed_by_parts = vec![false; claimed.len()];
     let mut taken = Vec::new();
     loop {
         let mut gains: Vec<(f64, usize)> = Vec::with_capacity(open.len());
@@ -251,17 +257,19 @@ pub fn explain_scene(
         let mut still_open = Vec::with_capacity(open.len());
         for &i in &open {
             let s = &scores[i];
-            // Newly explained cells, and their summed fit weights.
-            let (mut new, mut new_fit) = (0usize, 0.0f64);
+            // Newly explained cells, and their summed fit weights; and the cells no part
+            // taken claims (a support plane's cells are still the part's own surface seen).
+            let (mut new, mut new_fit, mut own) = (0usize, 0.0f64, 0usize);
             for (&c, &fit) in s.explained_cells.iter().zip(&s.explained_fit) {
                 if !claimed.get(c as usize).copied().unwrap_or(true) {
                     new += 1;
                     new_fit += f64::from(fit);
                 }
+                own += usize::from(!claimed_by_parts.get(c as usize).copied().unwrap_or(true));
             }
             let new = new as f64;
             if new < config.min_new_share * f64::from(s.explained)
-                || new < f64::from(config.min_explained_cells)
+                || (own as f64) < f64::from(config.min_explained_cells)
             {
                 rejected[i] = Some(Rejection::Explained);
                 continue;
@@ -296,6 +304,7 @@ pub fn explain_scene(
         for &c in &scores[i].explained_cells {
             if let Some(slot) = claimed.get_mut(c as usize) {
                 *slot = true;
+                claimed_by_parts[c as usize] = true;
             }
         }
         rejected[i] = None;
@@ -744,6 +753,34 @@ mod tests {
         let e = explain_scene(&scores, &votes, |_, _| false, &floor, &square_parts()).unwrap();
         assert_eq!(e.taken, vec![0]);
         assert_eq!(e.rejected[1], Some(Rejection::Explained));
+    }
+
+    #[test]
+    fn a_part_is_left_too_little_surface_only_by_the_parts_taken() {
+        // A bracket seen edge on explains 15 cells (10 are needed), the lowest 6 in the
+        // floor's band: the floor explains those already, but no part claims them, so it
+        // still shows 15 cells of its own and is taken. A neighbour taken over the same 6
+        // leaves it 9: too little surface of its own, it repeats the neighbour.
+        let strip = explaining(0..15, 0.9, 16);
+        let mut floor = vec![false; 3000];
+        floor[0..6].fill(true);
+        let alone = [strip.clone()];
+        let e = explain_scene(&alone, &[0], |_, _| false, &floor, &square_parts()).unwrap();
+        assert_eq!(
+            e.taken,
+            vec![0],
+            "refused for the floor's cells: {:?}",
+            e.rejected
+        );
+        let mut neighbour = explaining(100..400, 0.9, 300);
+        neighbour.explained_cells.extend(0..6);
+        neighbour.explained_fit.extend([0.9; 6]);
+        neighbour.explained += 6;
+        let both = [strip, neighbour];
+        let none = vec![false; 3000];
+        let e = explain_scene(&both, &[0, 0], |_, _| false, &none, &square_parts()).unwrap();
+        assert_eq!(e.taken, vec![1]);
+        assert_eq!(e.rejected[0], Some(Rejection::Explained));
     }
 
     #[test]

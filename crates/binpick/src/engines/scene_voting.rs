@@ -1032,7 +1032,7 @@ fn refusal_reason(why: Rejection, s: &ViewScore) -> String {
             "the scene's surface carries on past its outline (max_continued)".into()
         }
         Rejection::PoorFit => "the scene lies too far from the model (min_fit)".into(),
-        Rejection::Explained => "repeats a taken part (min_new_share)".into(),
+        Rejection::Explained => "repeats a taken part (min_new_share, min_explained_share)".into(),
     }
 }
 

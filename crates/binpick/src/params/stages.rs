@@ -557,10 +557,13 @@ stage_config! {
         /// carries on past its outline.
         edge_on_min_fit: f64 = 0.6, within(0.0, 1.0, "");
         /// A part must explain at least this share of the cells the model covers in its
-        /// median view (it must be seen, not guessed), and newly explain this share in the
-        /// scene explanation. A part on its thinnest side shows little: a Z bracket on the
-        /// 2 mm edge of its sheet shows 4-5 % of its median view; at 0.04 (before the
-        /// eleventh pass) the few cells a neighbour claimed sent it under.
+        /// median view (it must be seen, not guessed), and keep this share that no part
+        /// taken before it claims in the scene explanation (cells a support plane explains
+        /// are still its own surface seen: before the thirty-fourth pass they counted as
+        /// claimed, and a bracket on its edge lost its lowest cells to the floor). A part on
+        /// its thinnest side shows little: a Z bracket on the 2 mm edge of its sheet shows
+        /// 4-5 % of its median view; at 0.04 (before the eleventh pass) the few cells a
+        /// neighbour claimed sent it under.
         min_explained_share: f64 = 0.03, within(0.0, 1.0, "");
         /// In the competition, each free-space cell costs this many explained cells.
         free_space_weight: f64 = 2.0, within(0.0, 100.0, "");
