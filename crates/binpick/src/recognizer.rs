@@ -20,7 +20,7 @@ use binpick_cloud::{PointCloud, Units};
 
 use crate::deadline::{CancelToken, Deadline, ms};
 use crate::engines::cluster_search::{ClusterSearch, Found};
-use crate::engines::scene_voting::{SceneIndexes, SceneVoting};
+use crate::engines::scene_voting::SceneVoting;
 use crate::error::{Error, Result};
 use crate::frames::OutputFrame;
 use crate::grasp::{GraspScene, check_and_order};
@@ -57,10 +57,8 @@ struct PreparedScene {
     points: Vec<binpick_cloud::Point>,
     /// ... and which of them are support ...
     support: Vec<bool>,
-    /// ... and the support planes, `a x + b y + c z + d = 0` (mm) ...
+    /// ... and the support planes, `a x + b y + c z + d = 0` (mm).
     planes: Vec<[f64; 4]>,
-    /// ... and the search indexes over the points.
-    indexes: SceneIndexes,
 }
 
 /// What one call runs with: its stage configs (the recognizer's, with the call's options),
@@ -518,7 +516,6 @@ impl Recognizer {
             points,
             support,
             planes,
-            indexes,
         } = {
             let _span = tracing::info_span!("preprocessing").entered();
             self.prepare_scene(scene, call, preprocessed, scale_out)?
@@ -543,7 +540,7 @@ impl Recognizer {
             threads: call.threads,
             support_planes: &planes,
         };
-        engine.detect(&points, &support, indexes)
+        engine.detect(&points, &support)
     }
 
     /// Crop, strays, units; the scan's spacing and every length derived from it and the
@@ -567,26 +564,18 @@ impl Recognizer {
         pre.support.distance_mm = Some(scale.support_distance_mm);
         let points = voxelise(&cleaned, &pre, call.deadline, preprocessed)?;
         drop(cleaned);
-        // The scene's search indexes do not depend on the support: built meanwhile (on the
-        // lease's pool, whose every worker carries the call's interrupt: `Lease::run`).
-        let (support, indexes) = rayon::join(
-            || {
-                support_of(
-                    &points,
-                    &pre,
-                    scale.connect_mm,
-                    SupportSize::Area {
-                        view_area_mm2: scale.part_view_area_mm2,
-                        curved: scale.part_curvature_radius_mm.is_some(),
-                    },
-                    call.threads,
-                    call.deadline,
-                    preprocessed,
-                )
+        let mut support = support_of(
+            &points,
+            &pre,
+            scale.connect_mm,
+            SupportSize::Area {
+                view_area_mm2: scale.part_view_area_mm2,
+                curved: scale.part_curvature_radius_mm.is_some(),
             },
-            || SceneIndexes::build(&points),
-        );
-        let (mut support, indexes) = (support?, indexes?);
+            call.threads,
+            call.deadline,
+            preprocessed,
+        )?;
         let noise = preprocessed.support_planes.first().and_then(|p| p.rms_mm);
         let planes: Vec<[f64; 4]> = preprocessed
             .support_planes
@@ -614,7 +603,6 @@ impl Recognizer {
             points,
             support,
             planes,
-            indexes,
         })
     }
 
@@ -693,13 +681,7 @@ impl Recognizer {
                 threads,
                 support_planes: &prepared.planes,
             };
-            engine.check(
-                &prepared.points,
-                &prepared.support,
-                &prepared.indexes,
-                poses,
-                refine,
-            )
+            engine.check(&prepared.points, &prepared.support, poses, refine)
         })
     }
 

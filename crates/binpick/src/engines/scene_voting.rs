@@ -22,20 +22,17 @@ use nalgebra::Isometry3;
 use rayon::prelude::*;
 
 use binpick_cloud::Point;
-use binpick_match::{
-    ExplainConfig, OrientedPoints, PointIndex, Rejection, Sensor, ViewScore, explain_scene,
-};
+use binpick_match::{ExplainConfig, OrientedPoints, Rejection, Sensor, ViewScore, explain_scene};
 
 use crate::deadline::{Deadline, ms};
-use crate::error::{Result, pcl};
+use crate::error::Result;
 use crate::params::Params;
 use crate::result::{
     CandidateRecord, DerivedScale, Detection, FoundBy, IcpReport, PoseCheck, RefusedCandidate,
     VotingReport,
 };
 use crate::stages::hypotheses::{
-    Voted, VotingModel, matching, scene_normals, scene_rims, scene_samples, view_normals,
-    view_normals_index, vote,
+    Voted, VotingModel, matching, scene_normals, scene_rims, scene_samples, view_normals, vote,
 };
 use crate::stages::part::Part;
 use crate::stages::rank::height_mm;
@@ -63,28 +60,6 @@ const TURN_CLOSER_SHARE: f64 = 0.5;
 /// A scene sample is explained by a taken part within this many view tolerances of its
 /// surface (later voting rounds skip it).
 const UNEXPLAINED_TOLERANCES: f64 = 2.0;
-
-/// The two search indexes over the preprocessed scene, support included: PCL's kd-tree
-/// (its normals) and the view normals' (kiddo). Neither depends on which points are support,
-/// so they are built while the support is searched.
-pub(crate) struct SceneIndexes {
-    pub pcl: binpick_pcl::IndexedCloud,
-    pub view: PointIndex,
-}
-
-impl SceneIndexes {
-    /// Both indexes over `points`, side by side (each is built on one core).
-    pub(crate) fn build(points: &[Point]) -> Result<Self> {
-        let (pcl, view) = rayon::join(
-            || binpick_pcl::IndexedCloud::new(points).map_err(pcl("scene kd-tree")),
-            || view_normals_index(points),
-        );
-        Ok(Self {
-            pcl: pcl?,
-            view: view?,
-        })
-    }
-}
 
 /// What the engine found in the scene.
 pub(crate) struct VotingFound {
@@ -126,12 +101,11 @@ struct Candidate {
 
 impl SceneVoting<'_> {
     /// The sensor and the scene's surface with normals: `points` is the preprocessed scene,
-    /// `support[i]` says point i is belt, floor or wall, `indexes` are over `points`.
+    /// `support[i]` says point i is belt, floor or wall.
     pub(crate) fn surface(
         &self,
         points: &[Point],
         support: &[bool],
-        indexes: &SceneIndexes,
     ) -> Result<(Sensor, SceneSurface)> {
         let p = self.params;
         let sensor = resolve_sensor(&p.verify.sensor, p.ranking.up, points)?;
@@ -154,9 +128,8 @@ impl SceneVoting<'_> {
             .map(|(c, b)| (*c, b.is_some()))
             .collect();
         let towards = viewpoint(&sensor, points);
-        let normals = scene_normals(
+        let (normals, indexes) = scene_normals(
             points,
-            &indexes.pcl,
             support,
             &planes,
             self.scale,
@@ -165,7 +138,7 @@ impl SceneVoting<'_> {
         )?;
         let view_normals = view_normals(
             points,
-            &indexes.view,
+            &indexes,
             support,
             &normals,
             self.scale.normal_radius_mm,
@@ -189,11 +162,10 @@ impl SceneVoting<'_> {
         &self,
         points: &[Point],
         support: &[bool],
-        indexes: &SceneIndexes,
         poses: &[Isometry3<f64>],
         refine: bool,
     ) -> Result<Vec<PoseCheck>> {
-        let (sensor, surface) = self.surface(points, support, indexes)?;
+        let (sensor, surface) = self.surface(points, support)?;
         let verifier = Verifier::new(
             sensor,
             &surface,
@@ -281,18 +253,11 @@ impl SceneVoting<'_> {
         })
     }
 
-    /// `points`: the preprocessed scene; `support[i]`: point i is belt, floor or wall;
-    /// `indexes` over `points` (dropped once the normals are known: a belt's are tens of MB).
-    pub(crate) fn detect(
-        &self,
-        points: &[Point],
-        support: &[bool],
-        indexes: SceneIndexes,
-    ) -> Result<VotingFound> {
+    /// `points`: the preprocessed scene; `support[i]`: point i is belt, floor or wall.
+    pub(crate) fn detect(&self, points: &[Point], support: &[bool]) -> Result<VotingFound> {
         let p = self.params;
         let lap = Instant::now();
-        let (sensor, mut surface) = self.surface(points, support, &indexes)?;
-        drop(indexes);
+        let (sensor, mut surface) = self.surface(points, support)?;
         let mut report = VotingReport {
             sensor: describe(&sensor),
             turn_ambiguous: self.model.turn_ambiguous,

@@ -190,23 +190,85 @@ pub(crate) fn subsample(points: &OrientedPoints, leaf: f64) -> Result<OrientedPo
     })
 }
 
+/// The search indexes the scene's normals are estimated with: PCL's kd-tree (its normals)
+/// and the view normals' (kiddo), over the points whose normals are estimated and every
+/// point within the normal radius of them. A belt is most of its scan and takes its plane's
+/// normal, so only its band around the parts is indexed: the neighbourhoods searched are the
+/// same, and building the trees over all of it cost a tenth of a belt scan's time.
+pub(crate) struct NormalIndexes {
+    pcl: binpick_pcl::IndexedCloud,
+    view: PointIndex,
+    /// Index into the scene's points of each indexed point, ascending.
+    members: Vec<u32>,
+}
+
+impl NormalIndexes {
+    /// Both indexes over the points of `points` within `radius_mm` of any of `queried`
+    /// (indices into `points`; a superset: every point of a grid cell of that side next to
+    /// a queried point's), built side by side.
+    pub(crate) fn around(points: &[Point], queried: &[u32], radius_mm: f64) -> Result<Self> {
+        use rayon::prelude::*;
+        use std::collections::HashSet;
+        use std::hash::BuildHasherDefault;
+
+        use crate::stages::preprocess::{CellHasher, floor_to_i64};
+        // A little wider than the radius: a point at the radius is never two cells away
+        // after rounding.
+        let side = radius_mm * 1.001;
+        let cell = |p: &Point| p.map(|c| floor_to_i64(f64::from(c) / side));
+        let mut near: HashSet<[i64; 3], BuildHasherDefault<CellHasher>> = HashSet::default();
+        for &q in queried {
+            let [x, y, z] = cell(&points[q as usize]);
+            for dx in -1..=1 {
+                for dy in -1..=1 {
+                    for dz in -1..=1 {
+                        near.insert([
+                            x.saturating_add(dx),
+                            y.saturating_add(dy),
+                            z.saturating_add(dz),
+                        ]);
+                    }
+                }
+            }
+        }
+        let members: Vec<u32> = (0..points.len() as u32)
+            .into_par_iter()
+            .filter(|&i| near.contains(&cell(&points[i as usize])))
+            .collect();
+        let indexed: Vec<Point> = members.iter().map(|&i| points[i as usize]).collect();
+        let (pcl, view) = rayon::join(
+            || binpick_pcl::IndexedCloud::new(&indexed).map_err(pcl("scene kd-tree")),
+            || PointIndex::new("scene", &indexed).map_err(matching("scene normals")),
+        );
+        Ok(Self {
+            pcl: pcl?,
+            view: view?,
+            members,
+        })
+    }
+
+    /// Where point `i` of the scene is among the indexed ones.
+    fn position(&self, i: u32) -> Option<u32> {
+        self.members.binary_search(&i).ok().map(|k| k as u32)
+    }
+}
+
 /// Normals of `points`, oriented towards `viewpoint` (NaN where undefined): PCL's
 /// `NormalEstimationOMP` at the derived radius, searching all of them, except at support
 /// points (`support[i]`) whose nearest support plane in `planes` (`a x + b y + c z + d = 0`,
 /// unit normal; with `true` where the plane bounds the parts) bounds the parts: those take
 /// the plane's normal. A belt is most of its scan and its plane is known, so estimating its
 /// normals would cost most of this stage for nothing; a plane that does not bound the parts
-/// may have been laid across their tops, where the surface is not the plane. `cloud` is
-/// `points` uploaded to PCL (its kd-tree is the one searched).
+/// may have been laid across their tops, where the surface is not the plane. Also returns
+/// the indexes searched, for [`view_normals`].
 pub(crate) fn scene_normals(
     points: &[Point],
-    cloud: &binpick_pcl::IndexedCloud,
     support: &[bool],
     planes: &[([f64; 4], bool)],
     scale: &DerivedScale,
     viewpoint: [f64; 3],
     threads: u32,
-) -> Result<Vec<[f32; 3]>> {
+) -> Result<(Vec<[f32; 3]>, NormalIndexes)> {
     let vp = Vector3::from(viewpoint);
     let on_plane = |p: &Point| -> Option<[f32; 3]> {
         let q = to_point3(p).coords;
@@ -229,9 +291,16 @@ pub(crate) fn scene_normals(
     let estimate: Vec<u32> = (0..points.len() as u32)
         .filter(|&i| normals[i as usize].is_none())
         .collect();
-    let estimated = cloud
+    let indexes = NormalIndexes::around(points, &estimate, scale.normal_radius_mm)?;
+    // Every point estimated is indexed (`around` keeps the queried points).
+    let at: Vec<u32> = estimate
+        .iter()
+        .filter_map(|&i| indexes.position(i))
+        .collect();
+    let estimated = indexes
+        .pcl
         .normals_at(
-            &estimate,
+            &at,
             scale.normal_radius_mm as f32,
             viewpoint.map(|c| c as f32),
             threads,
@@ -240,10 +309,11 @@ pub(crate) fn scene_normals(
     for (&i, n) in estimate.iter().zip(&estimated) {
         normals[i as usize] = Some(n.normal);
     }
-    Ok(normals
+    let normals = normals
         .into_iter()
         .map(|n| n.unwrap_or([f32::NAN; 3]))
-        .collect())
+        .collect();
+    Ok((normals, indexes))
 }
 
 /// A neighbourhood is a ribbon when its second spread (variance) is under this share of its
@@ -255,10 +325,10 @@ const RIBBON_SPREAD_RATIO: f64 = 0.15;
 /// point (not `support`) whose neighbourhood within `radius` (mm) is a ribbon
 /// ([`RIBBON_SPREAD_RATIO`]) faces the sensor at `viewpoint` across the ribbon's axis: a
 /// strip the sensor sees faces it. (Voting keeps the fitted normals.)
-/// `index` is [`view_normals_index`] over `points`.
+/// `indexes` are [`scene_normals`]'s.
 pub(crate) fn view_normals(
     points: &[Point],
-    index: &PointIndex,
+    indexes: &NormalIndexes,
     support: &[bool],
     normals: &[[f32; 3]],
     radius: f64,
@@ -274,10 +344,14 @@ pub(crate) fn view_normals(
             if s {
                 return n;
             }
-            index.within_into(p, radius as f32, near);
-            let Some(axis) =
-                Spread::of(near.iter().map(|&k| &points[k as usize])).and_then(|s| s.ribbon_axis())
-            else {
+            indexes.view.within_into(p, radius as f32, near);
+            // In the scene's order, whatever the tree's.
+            near.sort_unstable();
+            let Some(axis) = Spread::of(
+                near.iter()
+                    .map(|&k| &points[indexes.members[k as usize] as usize]),
+            )
+            .and_then(|s| s.ribbon_axis()) else {
                 return n;
             };
             let to_sensor = (vp - to_point3(p).coords).normalize();
@@ -291,12 +365,6 @@ pub(crate) fn view_normals(
             }
         })
         .collect())
-}
-
-/// The index [`view_normals`] searches, over the whole scene `points`: built apart so it can
-/// be built while PCL estimates the normals.
-pub(crate) fn view_normals_index(points: &[Point]) -> Result<PointIndex> {
-    PointIndex::new("scene", points).map_err(matching("scene normals"))
 }
 
 /// The principal spreads (summed squares, mm^2, largest first) and axes of a set of points.
@@ -633,21 +701,25 @@ mod tests {
             curvature_radius_mm: None,
         };
         let scale = DerivedScale::derive(&part, None, &Params::default()).unwrap();
+        let radius = scale.normal_radius_mm as f32;
         let above = [30.0, 30.0, 1e6];
-        let cloud = binpick_pcl::IndexedCloud::new(&points).unwrap();
         let normals = |planes: &[([f64; 4], bool)], threads| {
-            scene_normals(&points, &cloud, &support, planes, &scale, above, threads).unwrap()
+            scene_normals(&points, &support, planes, &scale, above, threads).unwrap()
         };
-        let both = normals(&[(plane, true)], 2);
+        let (both, indexes) = normals(&[(plane, true)], 2);
         let flipped = plane.map(|c| -c);
-        let other = normals(&[(flipped, true)], 1);
-        let estimated = binpick_pcl::estimate_normals(
-            &points,
-            scale.normal_radius_mm as f32,
-            [30.0, 30.0, 1e6],
-            1,
-        )
-        .unwrap();
+        let (other, _) = normals(&[(flipped, true)], 1);
+        let estimated =
+            binpick_pcl::estimate_normals(&points, radius, above.map(|c| c as f32), 1).unwrap();
+        // PCL over the points indexed: the box and the belt within the radius of it.
+        let indexed: Vec<Point> = indexes
+            .members
+            .iter()
+            .map(|&i| points[i as usize])
+            .collect();
+        assert!(indexed.len() < points.len());
+        let estimated_there =
+            binpick_pcl::estimate_normals(&indexed, radius, above.map(|c| c as f32), 1).unwrap();
         let up = plane.map(|c| c as f32);
         for (i, s) in support.iter().enumerate() {
             if *s {
@@ -657,16 +729,28 @@ mod tests {
                         assert!((n[k] - up[k]).abs() < 1e-6, "point {i}: {n:?}");
                     }
                 }
-            } else {
-                // PCL's own estimate, bit for bit, searching the belt too.
-                assert_eq!(
-                    both[i].map(f32::to_bits),
-                    estimated[i].normal.map(f32::to_bits)
-                );
+                continue;
+            }
+            // Every point within the radius is indexed ...
+            let d2 = |q: &Point| (0..3).map(|k| (q[k] - points[i][k]).powi(2)).sum::<f32>();
+            for (j, q) in points.iter().enumerate() {
+                if d2(q) <= radius * radius {
+                    assert!(indexes.position(j as u32).is_some(), "{j} near {i}");
+                }
+            }
+            // ... so the normal is PCL's estimate there, bit for bit, and PCL's over the
+            // whole scan up to the order the neighbours are summed in.
+            let k = indexes.position(i as u32).unwrap() as usize;
+            assert_eq!(
+                both[i].map(f32::to_bits),
+                estimated_there[k].normal.map(f32::to_bits)
+            );
+            for (a, b) in both[i].iter().zip(&estimated[i].normal) {
+                assert!((a - b).abs() < 1e-5, "{i}");
             }
         }
-        // A plane that does not bound the parts leaves its points to PCL.
-        let kept = normals(&[(plane, false)], 2);
+        // A plane that does not bound the parts leaves its points to PCL: all indexed.
+        let (kept, _) = normals(&[(plane, false)], 2);
         for (k, e) in kept.iter().zip(&estimated) {
             assert_eq!(k.map(f32::to_bits), e.normal.map(f32::to_bits));
         }
@@ -709,8 +793,9 @@ mod tests {
             normals.push([0.0, 1.0, 0.0]);
         }
         let above = [30.0, 0.0, 1e7];
-        let index = view_normals_index(&points).unwrap();
-        let view = view_normals(&points, &index, &support, &normals, 5.75, above).unwrap();
+        let everything: Vec<u32> = (0..points.len() as u32).collect();
+        let indexes = NormalIndexes::around(&points, &everything, 5.75).unwrap();
+        let view = view_normals(&points, &indexes, &support, &normals, 5.75, above).unwrap();
         // Away from its ends (within a radius of an end the neighbourhood is a short, wide
         // patch: the fitted normal stands).
         for (i, n) in view[..strip].iter().enumerate() {

@@ -372,7 +372,7 @@ impl DenseCells {
 
 /// `x.floor() as i64` (saturating; x not NaN) without a call to libm's `floor`, which the
 /// baseline x86-64 target does not inline: a third of [`drop_isolated`]'s time on a scan.
-fn floor_to_i64(x: f64) -> i64 {
+pub(crate) fn floor_to_i64(x: f64) -> i64 {
     let t = x as i64;
     if (t as f64) > x {
         t.saturating_sub(1)
@@ -409,7 +409,7 @@ fn block_count<S: std::hash::BuildHasher>(
 /// FxHash-style hasher for integer cell keys (the default SipHash is several times slower on
 /// millions of cells and its DoS resistance is not needed here).
 #[derive(Default)]
-struct CellHasher(u64);
+pub(crate) struct CellHasher(u64);
 
 impl Hasher for CellHasher {
     fn write(&mut self, bytes: &[u8]) {
