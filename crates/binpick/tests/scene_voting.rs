@@ -750,6 +750,38 @@ fn the_top_part_of_a_pile_sticking_out_past_the_bins_rim_is_found() {
 }
 
 #[test]
+fn a_bracket_standing_on_its_profile_edge_is_found_past_the_strips_of_its_sides() {
+    // Seed 11 `brackets-bin-depth-005`: a Z bracket stands in full view on the edge of its
+    // profile. The sensor sees that edge, and at a grazing angle strips of its sides below
+    // it; over a quarter of the diameter they tilted the rim's profile out of flat, so 1 of
+    // its 51 ribbon samples was a rim and the rim table had nothing to vote with. The
+    // profile is now also tried at the rim's own level (`RimLevel`).
+    let s = seeded_scan(
+        PartKind::Bracket,
+        "brackets-bin-depth",
+        11,
+        5,
+        Params::default(),
+    );
+    let standing: Vec<_> = s
+        .on_edge
+        .iter()
+        .filter(|p| (p.rotation * nalgebra::Vector3::y()).z.abs() > 0.95)
+        .collect();
+    assert_eq!(standing.len(), 1, "one bracket standing on its profile");
+    let found = s.recognizer.recognize(&s.scene).unwrap();
+    assert!(
+        found.detections.iter().any(|d| {
+            pose::translation_error_mm(standing[0], &d.pose) < 0.05 * s.diameter_mm
+                && pose::rotation_error_deg(standing[0], &d.pose) < 5.0
+        }),
+        "the standing bracket at {:?} was not found: {:#?}",
+        standing[0].translation.vector,
+        found.detections
+    );
+}
+
+#[test]
 fn a_pose_sunk_into_the_floor_does_not_take_the_place_of_the_part_it_lies_across() {
     // Seed 4 `mixed-bin-clutter-2mm-009`: a bent plate lies in full view among clutter. A
     // pose of the plate turned half-way, laid across it and a clutter part with a corner

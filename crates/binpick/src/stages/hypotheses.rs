@@ -371,6 +371,7 @@ pub(crate) fn view_normals(
 struct Spread {
     values: [f64; 3],
     axes: [Vector3<f64>; 3],
+    mean: Vector3<f64>,
 }
 
 impl Spread {
@@ -397,6 +398,7 @@ impl Spread {
         Some(Self {
             values: order.map(|k| eig.eigenvalues[k]),
             axes: order.map(|k| eig.eigenvectors.column(k).into_owned()),
+            mean,
         })
     }
 
@@ -459,7 +461,7 @@ pub(crate) fn model_rims(
         .iter()
         .map(|&i| to_point3(&dense.normals[i]).coords)
         .collect();
-    let profiled = profiles(&rim_points, diameter, |k, normal| {
+    let profiled = profiles(&rim_points, diameter, None, |k, normal| {
         let c = normal.dot(&facing[k]);
         (c.abs() > RIM_FACING_COS).then(|| normal * c.signum())
     });
@@ -522,7 +524,11 @@ pub(crate) fn scene_rims(
         }
         Err(_) => Vec::new(),
     };
-    let profiled = profiles(&rim_points, diameter, |k, normal| {
+    let level = RimLevel {
+        viewpoint: vp,
+        band_mm: radius,
+    };
+    let profiled = profiles(&rim_points, diameter, Some(&level), |k, normal| {
         let to_sensor = (vp - to_point3(&rim_points[k]).coords).normalize();
         let c = normal.dot(&to_sensor);
         (c.abs() > RIM_FACING_COS).then(|| normal * c.signum())
@@ -531,10 +537,12 @@ pub(crate) fn scene_rims(
 }
 
 /// The points of `rim` that lie in a flat profile of their neighbours within a quarter of
-/// `diameter`, with the normal `orient` gives the profile's (None drops the point).
+/// `diameter`, with the normal `orient` gives the profile's (None drops the point). With a
+/// `level`, a point whose neighbours are not flat tries the profile at its own depth.
 fn profiles(
     rim: &[Point],
     diameter: f64,
+    level: Option<&RimLevel>,
     orient: impl Fn(usize, Vector3<f64>) -> Option<Vector3<f64>> + Sync,
 ) -> OrientedPoints {
     use rayon::prelude::*;
@@ -550,6 +558,11 @@ fn profiles(
             Spread::of(near.iter().map(|&j| &rim[j as usize]))
                 .and_then(|s| s.profile_normal())
                 .and_then(|n| orient(k, n))
+                .or_else(|| {
+                    level
+                        .and_then(|l| l.profile_normal(rim, near, p))
+                        .and_then(|n| orient(k, n))
+                })
         })
         .collect();
     let (points, normals) = rim
@@ -558,6 +571,39 @@ fn profiles(
         .filter_map(|(p, n)| n.map(|n| (*p, [n.x as f32, n.y as f32, n.z as f32])))
         .unzip();
     OrientedPoints { points, normals }
+}
+
+/// A scene rim's profile at one level. A part standing on the edge of its sheet shows the
+/// sensor that edge, and at a grazing angle strips of its faces below it, which pass the
+/// ribbon test too: over a quarter of the diameter they tilt the profile out of flat
+/// (traced on a Z bracket standing on its profile: 1 of 51 ribbon samples kept). The
+/// profile is then fitted to the rim samples within `band_mm` of the point's depth towards
+/// the sensor, and taken again over those within `band_mm` of that plane.
+struct RimLevel {
+    viewpoint: Vector3<f64>,
+    band_mm: f64,
+}
+
+impl RimLevel {
+    /// The profile's normal at `p` from its neighbours `near` (indices into `rim`).
+    fn profile_normal(&self, rim: &[Point], near: &[u32], p: &Point) -> Option<Vector3<f64>> {
+        let q = to_point3(p).coords;
+        let to_sensor = (self.viewpoint - q).try_normalize(1e-12)?;
+        let points = || near.iter().map(|&j| &rim[j as usize]);
+        let level = Spread::of(
+            points().filter(|r| (to_point3(r).coords - q).dot(&to_sensor).abs() <= self.band_mm),
+        )?;
+        // A line at that depth gives no plane: the profile must bend there.
+        let [first, second, _] = level.values;
+        if !(first > 0.0 && second > PROFILE_WIDTH * first) {
+            return None;
+        }
+        let (normal, mean) = (level.axes[2], level.mean);
+        Spread::of(
+            points().filter(|r| (to_point3(r).coords - mean).dot(&normal).abs() <= self.band_mm),
+        )?
+        .profile_normal()
+    }
 }
 
 /// The scene's samples at the sampling step (the `world` points with their normals);
@@ -894,5 +940,64 @@ mod tests {
         }
         assert!(ribbons.len() > strip / 2, "{} of {strip}", ribbons.len());
         assert!(ribbons.iter().all(|p| p[0] < 40.0));
+    }
+
+    #[test]
+    fn a_rim_profile_is_taken_at_its_own_level_past_the_strips_of_faces_below_it() {
+        // A Z profile 40 mm up, seen from above (rim samples every 3.5 mm), and the strips
+        // a grazing face leaves 9 to 15 mm below its middle leg.
+        let mut rim: Vec<Point> = Vec::new();
+        let step = 3.5f32;
+        for k in 0..9 {
+            let t = k as f32 * step;
+            rim.push([-t, -15.0, 40.0]);
+            rim.push([0.0, -15.0 + t, 40.0]);
+            rim.push([t, 15.0, 40.0]);
+        }
+        let top = rim.len();
+        for k in 0..9 {
+            for z in [25.0f32, 28.0, 31.0] {
+                rim.push([1.5, -14.0 + k as f32 * step, z]);
+            }
+        }
+        let up = [0.0, 0.0, 1e6];
+        let facing = |k: usize, n: Vector3<f64>| {
+            let to_sensor = (Vector3::from(up) - to_point3(&rim[k]).coords).normalize();
+            let c = n.dot(&to_sensor);
+            (c.abs() > RIM_FACING_COS).then(|| n * c.signum())
+        };
+        let diameter = 87.5;
+        let plain = profiles(&rim, diameter, None, facing);
+        let level = RimLevel {
+            viewpoint: Vector3::from(up),
+            band_mm: f64::from(step),
+        };
+        let levelled = profiles(&rim, diameter, Some(&level), facing);
+        // Over a quarter of the diameter the strips below tilt most of the profile ...
+        assert!(plain.len() < top / 2, "{} of {top}", plain.len());
+        // ... at its own level the edge is a profile facing up (all but the far ends of the
+        // outer legs, which see no bend within a quarter of the diameter), the strips not.
+        let on_top = |p: &Point| p[2] == 40.0;
+        let kept = levelled.points.iter().filter(|p| on_top(p)).count();
+        assert!(kept >= 2 * top / 3, "{kept} of {top}");
+        let near_a_bend = |p: &Point| {
+            [-15.0f32, 15.0].iter().any(|&y| {
+                (p[0].powi(2) + (p[1] - y).powi(2)).sqrt() < 0.25 * diameter as f32 - step
+            })
+        };
+        for p in rim[..top].iter().filter(|p| near_a_bend(p)) {
+            assert!(levelled.points.contains(p), "{p:?}");
+        }
+        assert!(levelled.points.iter().all(on_top));
+        assert!(
+            levelled.normals.iter().all(|n| n[2] > 0.99),
+            "{:?}",
+            levelled.normals
+        );
+        // Where the neighbours are flat the level changes nothing.
+        for (p, n) in plain.points.iter().zip(&plain.normals) {
+            let k = levelled.points.iter().position(|q| q == p).unwrap();
+            assert_eq!(levelled.normals[k], *n);
+        }
     }
 }
