@@ -295,8 +295,13 @@ pub(crate) fn scene_normals(
     // Every point estimated is indexed (`around` keeps the queried points).
     let at: Vec<u32> = estimate
         .iter()
-        .filter_map(|&i| indexes.position(i))
-        .collect();
+        .map(|&i| indexes.position(i))
+        .collect::<Option<_>>()
+        .ok_or_else(|| Error::Input {
+            what: "scene normals",
+            kind: crate::error::InputKind::Degenerate,
+            message: "a point whose normal is estimated is missing from the kd-tree".into(),
+        })?;
     let estimated = indexes
         .pcl
         .normals_at(
