@@ -489,8 +489,10 @@ impl SceneVoting<'_> {
     /// compared with each, point by point, finer than the view's cells. A turn the scene
     /// confirms much more closely there ([`TURN_CLOSER_SHARE`] of the taken part's residual)
     /// replaces it. The view cannot tell a Z bracket from its turn when the flanges'
-    /// difference (5 mm) is within a cell or two of slack. A part seen edge on is left as
-    /// taken. Returns the candidates replaced.
+    /// difference (5 mm) is within a cell or two of slack. A part seen edge on is judged
+    /// from the scan's side ([`Verifier::scan_residuals`]): its turn replaces it when it
+    /// explains the scan points either explains that closely. Returns the candidates
+    /// replaced.
     fn settle_turns(
         &self,
         verifier: &Verifier,
@@ -519,10 +521,6 @@ impl SceneVoting<'_> {
             .taken
             .iter()
             .enumerate()
-            // A part seen edge on is a strip whose ends are all outline: the scan's edge
-            // falls beside the model's as often as on it (`edge_on_min_fit`), and the ends
-            // are where a part and its turn differ.
-            .filter(|&(_, &i)| f64::from(candidates[i].score.visible) > edge_on)
             .map(|(t, &i)| {
                 let r = (0..candidates.len())
                     .filter(|&j| {
@@ -563,6 +561,27 @@ impl SceneVoting<'_> {
             .map(|(t, rivals)| {
                 let i = explanation.taken[*t];
                 let mut best: Option<(f64, usize)> = None;
+                // A part seen edge on is a strip whose ends are all outline: its seen points
+                // where it and its turn differ are too few or fall beside the scan's edge
+                // (`edge_on_min_fit`), so the scan's points there judge it.
+                if f64::from(candidates[i].score.visible) <= edge_on {
+                    for &j in rivals {
+                        let (si, sj, n) = verifier.scan_residuals(
+                            (seen_of(i), &candidates[i].pose),
+                            (seen_of(j), &candidates[j].pose),
+                            &index,
+                            apart,
+                        );
+                        tracing::trace!(taken = i, turn = j, si, sj, n, "edge on, the scan's side");
+                        if n >= TURN_MIN_APART_POINTS
+                            && sj < TURN_CLOSER_SHARE * si
+                            && best.is_none_or(|(b, _)| sj / si < b)
+                        {
+                            best = Some((sj / si, j));
+                        }
+                    }
+                    return best;
+                }
                 for &j in rivals {
                     let (ri, ni) = verifier.residual_apart_from(
                         seen_of(i),

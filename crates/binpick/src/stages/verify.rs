@@ -585,6 +585,50 @@ impl<'a> Verifier<'a> {
         (if n == 0 { 0.0 } else { sum / n as f64 }, n)
     }
 
+    /// How closely each of two poses explains the scan where either explains it: over the
+    /// scene points within the tolerance of `a`'s or `b`'s seen surface and within
+    /// `apart_mm` of either pose's part surface (`surface_index`, model frame), the mean
+    /// squared distance to each pose's surface, truncated at the view tolerance (mm^2), and
+    /// how many points that is. The scan's side of [`Self::residual_apart_from`]: a strip
+    /// seen edge on has too few seen model points where a part and its turn differ, but
+    /// the turn leaves the scan's end of the longer flange unexplained.
+    pub(crate) fn scan_residuals(
+        &self,
+        a: (&SeenSurface, &Isometry3<f64>),
+        b: (&SeenSurface, &Isometry3<f64>),
+        surface_index: &binpick_match::GridIndex,
+        apart_mm: f64,
+    ) -> (f64, f64, usize) {
+        let tolerance = self.scale.tolerance_mm;
+        let cap = (tolerance * tolerance) as f32;
+        let apart = (apart_mm * apart_mm) as f32;
+        let mut near = Vec::new();
+        let mut found = Vec::new();
+        for q in a.0.0.iter().chain(&b.0.0) {
+            self.world_index
+                .within_into(q, tolerance as f32, &mut found);
+            near.extend_from_slice(&found);
+        }
+        near.sort_unstable();
+        near.dedup();
+        let (back_a, back_b) = (a.1.inverse(), b.1.inverse());
+        let (mut sum_a, mut sum_b, mut n) = (0.0f64, 0.0f64, 0usize);
+        for &k in &near {
+            let s = &self.world_points[k as usize];
+            let da = surface_index.nearest_squared(&transform_point(&back_a, s));
+            let db = surface_index.nearest_squared(&transform_point(&back_b, s));
+            if da.min(db) <= apart {
+                sum_a += f64::from(da.min(cap));
+                sum_b += f64::from(db.min(cap));
+                n += 1;
+            }
+        }
+        if n == 0 {
+            return (0.0, 0.0, 0);
+        }
+        (sum_a / n as f64, sum_b / n as f64, n)
+    }
+
     /// The view tolerance, mm.
     pub(crate) fn tolerance_mm(&self) -> f64 {
         self.scale.tolerance_mm
