@@ -749,6 +749,18 @@ fn the_top_part_of_a_pile_sticking_out_past_the_bins_rim_is_found() {
     );
 }
 
+/// The one bracket of `s` standing on the edge of its profile (the sheet's width, the
+/// model's y axis, vertical).
+fn standing_on_its_profile(s: &BeltScan) -> Isometry3<f64> {
+    let standing: Vec<_> = s
+        .on_edge
+        .iter()
+        .filter(|p| (p.rotation * nalgebra::Vector3::y()).z.abs() > 0.95)
+        .collect();
+    assert_eq!(standing.len(), 1, "one bracket standing on its profile");
+    *standing[0]
+}
+
 #[test]
 fn a_bracket_standing_on_its_profile_edge_is_found_past_the_strips_of_its_sides() {
     // Seed 11 `brackets-bin-depth-005`: a Z bracket stands in full view on the edge of its
@@ -763,20 +775,15 @@ fn a_bracket_standing_on_its_profile_edge_is_found_past_the_strips_of_its_sides(
         5,
         Params::default(),
     );
-    let standing: Vec<_> = s
-        .on_edge
-        .iter()
-        .filter(|p| (p.rotation * nalgebra::Vector3::y()).z.abs() > 0.95)
-        .collect();
-    assert_eq!(standing.len(), 1, "one bracket standing on its profile");
+    let standing = standing_on_its_profile(&s);
     let found = s.recognizer.recognize(&s.scene).unwrap();
     assert!(
         found.detections.iter().any(|d| {
-            pose::translation_error_mm(standing[0], &d.pose) < 0.05 * s.diameter_mm
-                && pose::rotation_error_deg(standing[0], &d.pose) < 5.0
+            pose::translation_error_mm(&standing, &d.pose) < 0.05 * s.diameter_mm
+                && pose::rotation_error_deg(&standing, &d.pose) < 5.0
         }),
         "the standing bracket at {:?} was not found: {:#?}",
-        standing[0].translation.vector,
+        standing.translation.vector,
         found.detections
     );
 }
@@ -795,23 +802,18 @@ fn a_bracket_standing_on_its_profile_is_told_from_its_turn_by_the_scan_at_its_en
         2,
         Params::default(),
     );
-    let standing: Vec<_> = s
-        .on_edge
-        .iter()
-        .filter(|p| (p.rotation * nalgebra::Vector3::y()).z.abs() > 0.95)
-        .collect();
-    assert_eq!(standing.len(), 1, "one bracket standing on its profile");
+    let standing = standing_on_its_profile(&s);
     let found = s.recognizer.recognize(&s.scene).unwrap();
     let near: Vec<_> = found
         .detections
         .iter()
-        .filter(|d| pose::translation_error_mm(standing[0], &d.pose) < 0.1 * s.diameter_mm)
+        .filter(|d| pose::translation_error_mm(&standing, &d.pose) < 0.1 * s.diameter_mm)
         .collect();
     assert_eq!(near.len(), 1, "reported once: {near:#?}");
     assert!(
-        pose::rotation_error_deg(standing[0], &near[0].pose) < 5.0,
+        pose::rotation_error_deg(&standing, &near[0].pose) < 5.0,
         "the standing bracket at {:?} was reported as {:?}",
-        standing[0].translation.vector,
+        standing.translation.vector,
         near[0].pose
     );
 }
