@@ -162,6 +162,12 @@ pub struct ViewCheck {
     /// a part: evidence the support gives whether or not the part is there.
     #[serde(default)]
     pub on_support: f64,
+    /// Scene-voting engine, parts taken: the largest share of the confirmed surface of a
+    /// pose of another part, fitting closer, that this part claimed in the scene
+    /// explanation (making that pose a repeat); above `contested_max` the part is not
+    /// free to pick. Absent in older results: 0.
+    #[serde(default)]
+    pub contested: f64,
 }
 
 impl ViewCheck {

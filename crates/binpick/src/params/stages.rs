@@ -320,6 +320,12 @@ stage_config! {
         /// edge resting on a part covers a few percent of it (right plates and
         /// rods at 3.2-4.3 % lost the first pick to wrong free poses at 3 %).
         covered_max: f64 = 0.05, within(0.0, 1.0, "");
+        /// Scene-voting engine: a part that made a repeat of another part's closer-fitting
+        /// pose, claiming more than this share of that pose's confirmed surface, is not free
+        /// to pick (`ViewCheck::contested`): its pose may be laid on the other part's
+        /// surface (seed 16's `brackets-bin-2mm-002`: a pose lifted 3 mm onto the flange of
+        /// a bracket lying on it was the first pick).
+        contested_max: f64 = 0.6, within(0.0, 1.0, "");
         /// Scene-voting engine: pick confidences (the visible share confirmed by surface
         /// other than the support, less `free_space_weight` times the share seen through) in
         /// the same band of this width count as equal and the higher part is picked first

@@ -822,6 +822,7 @@ pub(crate) fn view_check(s: &ViewScore) -> ViewCheck {
         below_support: s.below_support_ratio(),
         sunk_mm: s.sunk_mm,
         on_support: s.support_explained_ratio(),
+        contested: 0.0,
     }
 }
 
