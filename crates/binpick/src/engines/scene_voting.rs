@@ -515,9 +515,7 @@ impl SceneVoting<'_> {
         if !self.params.verify.near_symmetry_variants || self.model.near_symmetries.is_empty() {
             return Ok(replaced);
         }
-        let v = &self.params.voting;
-        let near_mm = v.cluster_translation_diameters * self.scale.model_diameter_mm;
-        let near_rad = v.cluster_rotation_deg.to_radians();
+        let (near_mm, near_rad) = self.same_pose_tolerances();
         let centre = self.model.centre;
         let edge_on = edge_on_cells(self.scale);
         let turn_of = |i: usize, j: usize| {
@@ -654,8 +652,7 @@ impl SceneVoting<'_> {
         candidates: &[Candidate],
         explanation: &binpick_match::Explanation,
     ) -> Vec<f64> {
-        let near_mm =
-            self.params.voting.cluster_translation_diameters * self.scale.model_diameter_mm;
+        let (near_mm, _) = self.same_pose_tolerances();
         let centre = self.model.centre;
         explanation
             .taken
@@ -858,6 +855,17 @@ impl SceneVoting<'_> {
         Ok(better.then_some((moved, out, s)))
     }
 
+    /// The pose clustering's tolerances: two poses whose part centres lie closer than the
+    /// first (mm) and whose rotations differ by less than the second (radians, up to
+    /// symmetry) are one pose.
+    fn same_pose_tolerances(&self) -> (f64, f64) {
+        let v = &self.params.voting;
+        (
+            v.cluster_translation_diameters * self.scale.model_diameter_mm,
+            v.cluster_rotation_deg.to_radians(),
+        )
+    }
+
     /// The greedy scene explanation over `candidates`: a near-tie between different poses
     /// goes to the pose with more votes of its own (a turn has none), one between
     /// hypotheses of one pose (within the pose clustering's tolerances) to the better fit.
@@ -872,9 +880,7 @@ impl SceneVoting<'_> {
             .iter()
             .map(|c| if c.turned { 0 } else { c.votes })
             .collect();
-        let v = &self.params.voting;
-        let near_mm = v.cluster_translation_diameters * self.scale.model_diameter_mm;
-        let near_rad = v.cluster_rotation_deg.to_radians();
+        let (near_mm, near_rad) = self.same_pose_tolerances();
         let centre = self.model.centre;
         let same_pose = |i: usize, j: usize| {
             let (a, b) = (&candidates[i].pose, &candidates[j].pose);
