@@ -73,6 +73,12 @@ pub struct ExplainConfig {
     /// A hypothesis must explain at least this share of its confirmed cells that no taken
     /// part explains yet. Range 0-1.
     pub min_new_share: f64,
+    /// A cell a taken part explains is still new to a later hypothesis whose fit weight
+    /// there is higher by more than this: the scan lies closer to it. A part lying flat on
+    /// another's flange is a sheet's thickness above it, within the tolerance, so the pose
+    /// beneath explains its cells too and, taken first, made it a repeat. Range 0-1 (1 =
+    /// off: a fit weight is at most 1).
+    pub closer_cell_margin: f64,
     /// Gains within this share of the best are a tie. Between different poses it is won by
     /// the one with the most votes of its own (the view cannot tell a near-symmetric part
     /// from its turn when the feature that differs is hidden, the votes over the whole part
@@ -96,6 +102,7 @@ impl ExplainConfig {
             ("max_below_support", self.max_below_support),
             ("max_continued", self.max_continued),
             ("min_new_share", self.min_new_share),
+            ("closer_cell_margin", self.closer_cell_margin),
             ("tie_share", self.tie_share),
         ] {
             if !unit(share) {
@@ -249,6 +256,9 @@ pub fn explain_scene(
     let mut claimed = already_explained.to_vec();
     // Claimed by a part taken (not by a support plane alone).
     let mut claimed_by_parts = vec![false; claimed.len()];
+    // Per cell, the best fit weight of the parts taken that claim it.
+    let mut claimed_fit = vec![0.0f32; claimed.len()];
+    let margin = config.closer_cell_margin as f32;
     let mut taken = Vec::new();
     loop {
         let mut gains: Vec<(f64, usize)> = Vec::with_capacity(open.len());
@@ -261,11 +271,15 @@ pub fn explain_scene(
             // taken claims (a support plane's cells are still the part's own surface seen).
             let (mut new, mut new_fit, mut own) = (0usize, 0.0f64, 0usize);
             for (&c, &fit) in s.explained_cells.iter().zip(&s.explained_fit) {
-                if !claimed.get(c as usize).copied().unwrap_or(true) {
+                let c = c as usize;
+                // A taken part's cell the scan fits much closer to this hypothesis.
+                let closer = claimed_by_parts.get(c).copied().unwrap_or(false)
+                    && fit > claimed_fit[c] + margin;
+                if closer || !claimed.get(c).copied().unwrap_or(true) {
                     new += 1;
                     new_fit += f64::from(fit);
                 }
-                own += usize::from(!claimed_by_parts.get(c as usize).copied().unwrap_or(true));
+                own += usize::from(closer || !claimed_by_parts.get(c).copied().unwrap_or(true));
             }
             let new = new as f64;
             if new < config.min_new_share * f64::from(s.explained)
@@ -301,10 +315,15 @@ pub fn explain_scene(
                 None => break,
             },
         };
-        for &c in &scores[i].explained_cells {
+        for (&c, &fit) in scores[i]
+            .explained_cells
+            .iter()
+            .zip(&scores[i].explained_fit)
+        {
             if let Some(slot) = claimed.get_mut(c as usize) {
                 *slot = true;
                 claimed_by_parts[c as usize] = true;
+                claimed_fit[c as usize] = claimed_fit[c as usize].max(fit);
             }
         }
         rejected[i] = None;
@@ -440,6 +459,7 @@ mod tests {
             max_explained_by_support: 1.0,
             free_space_weight: 2.0,
             min_new_share: 0.5,
+            closer_cell_margin: 1.0,
             tie_share: 0.0,
             edge_on_cells: 0.0,
             edge_on_min_fit: 0.5,
@@ -557,6 +577,47 @@ mod tests {
             explained_cells,
             ..ViewScore::default()
         }
+    }
+
+    #[test]
+    fn a_part_lying_on_another_keeps_the_cells_it_fits_much_closer() {
+        // The pose beneath (0) confirms cells 0-99: 0-59 its own at fit 1, 60-99 those of a
+        // part lying on it a sheet's thickness higher, at fit 0.5. That part (1) confirms
+        // 60-129 at fit 1. Gains 80 and 70: the pose beneath is taken first.
+        let mut beneath = explaining(0..100, 1.0, 100);
+        for f in &mut beneath.explained_fit[60..] {
+            *f = 0.5;
+        }
+        beneath.fit = 80.0;
+        let on_top = explaining(60..130, 1.0, 70);
+        // A repeat of the pose beneath, fitting less closely everywhere (gain 75).
+        let repeat = explaining(0..100, 0.75, 100);
+        let scores = [beneath, on_top, repeat];
+        let run = |margin: f64| {
+            let config = ExplainConfig {
+                closer_cell_margin: margin,
+                ..square_parts()
+            };
+            explain_scene(&scores, &[0; 3], |_, _| false, &[false; 200], &config).unwrap()
+        };
+        // Without the per-cell competition the part on top keeps 30 of its 70 cells.
+        let off = run(1.0);
+        assert_eq!(off.taken, vec![0]);
+        assert_eq!(off.rejected[1], Some(Rejection::Explained));
+        // With it, the 40 cells it fits closer by more than the margin are its own again;
+        // the repeat wins back the 40 of the pose beneath it fits closer, 40 % of its
+        // surface, and stays a repeat.
+        let on = run(0.2);
+        assert_eq!(on.taken, vec![0, 1]);
+        assert_eq!(on.rejected[2], Some(Rejection::Explained));
+        assert!(
+            ExplainConfig {
+                closer_cell_margin: 1.5,
+                ..square_parts()
+            }
+            .validate()
+            .is_err()
+        );
     }
 
     #[test]

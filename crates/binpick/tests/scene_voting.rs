@@ -853,6 +853,43 @@ fn a_pose_laid_on_the_flange_of_a_part_lying_on_it_is_not_the_first_pick() {
 }
 
 #[test]
+fn a_bracket_nested_between_two_others_wins_back_the_cells_it_fits_closer() {
+    // Seed 14 `brackets-bin-2mm-006`: three brackets lie nested, flange on flange, the
+    // middle one 61 % visible. The poses of the one above and the one beneath, a sheet's
+    // thickness away, explain its cells within the tolerance; taken first, they left its
+    // right pose a repeat. Its own pose fits those cells much closer
+    // (`closer_cell_margin`): it is found, and with the per-cell competition off it is not.
+    let s = seeded_scan(
+        PartKind::Bracket,
+        "brackets-bin-2mm",
+        14,
+        6,
+        Params::default(),
+    );
+    let found_by = |recognizer: &Recognizer| -> Vec<usize> {
+        let found = recognizer.recognize(&s.scene).unwrap();
+        s.pickable
+            .iter()
+            .chain(&s.on_edge)
+            .enumerate()
+            .filter(|(_, t)| {
+                found.detections.iter().any(|d| {
+                    pose::translation_error_mm(t, &d.pose) < 0.05 * s.diameter_mm
+                        && pose::rotation_error_deg(t, &d.pose) < 5.0
+                })
+            })
+            .map(|(k, _)| k)
+            .collect()
+    };
+    let with = found_by(&s.recognizer);
+    let without = found_by(&s.recognizer_with(|p| p.verify.closer_cell_margin = 1.0));
+    assert!(
+        without.iter().all(|k| with.contains(k)) && with.len() > without.len(),
+        "pickable parts found {with:?}, with every claimed cell taken {without:?}"
+    );
+}
+
+#[test]
 fn a_pose_sunk_into_the_floor_does_not_take_the_place_of_the_part_it_lies_across() {
     // Seed 4 `mixed-bin-clutter-2mm-009`: a bent plate lies in full view among clutter. A
     // pose of the plate turned half-way, laid across it and a clutter part with a corner

@@ -910,6 +910,7 @@ impl SceneVoting<'_> {
                 .max(1.0) as u32,
             free_space_weight: v.free_space_weight,
             min_new_share: v.min_new_share,
+            closer_cell_margin: v.closer_cell_margin,
             tie_share: v.tie_share,
             // Only a part with rims: its edge must then meet the scene's ribbons where the
             // scene carries on past its outline (`Verifier::edge_on_a_surface`).

@@ -575,6 +575,13 @@ stage_config! {
         free_space_weight: f64 = 2.0, within(0.0, 100.0, "");
         /// A hypothesis must newly explain this share of its cells (else it repeats a part).
         min_new_share: f64 = 0.5, within(0.0, 1.0, "");
+        /// A cell a taken part explains is new to a later hypothesis whose fit weight there
+        /// is higher by more than this (the scan lies closer to it; Aldoma et al.'s per-point
+        /// competition, by cell): a bracket lying flat on another's flange is a sheet's
+        /// thickness above it, within the tolerance, so a pose of the one beneath explained
+        /// its cells too and, taken first, left it a repeat (before the thirty-seventh pass,
+        /// when every claimed cell was taken). 1 = off (a fit weight is at most 1).
+        closer_cell_margin: f64 = 0.3, within(0.0, 1.0, "");
         /// In the competition, gains within this share of the best are a tie. Between
         /// different poses the one with the most votes for its own pose wins (a
         /// near-symmetric turn has none): with the flange that tells a part from its turn
