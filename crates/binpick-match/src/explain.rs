@@ -71,7 +71,7 @@ pub struct ExplainConfig {
     /// 0-100.
     pub free_space_weight: f64,
     /// A hypothesis must explain at least this share of its confirmed cells that no taken
-    /// part explains yet. Range 0-1.
+    /// part explains yet (or explains less closely, `closer_cell_margin`). Range 0-1.
     pub min_new_share: f64,
     /// A cell a taken part explains is still new to a later hypothesis whose fit weight
     /// there is higher by more than this: the scan lies closer to it. A part lying flat on
