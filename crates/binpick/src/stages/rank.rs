@@ -351,6 +351,22 @@ mod tests {
     }
 
     /// Asserts that a rank's reason says `text`.
+    /// `part(0)` (a detection the default ranking does not free) behind the free `other`
+    /// (hypothesis 1) ranks second and is not free; alone it gives no first pick. Returns
+    /// both rankings: (behind `other`, alone).
+    fn never_free(
+        part: impl Fn(usize) -> Detection,
+        other: Detection,
+    ) -> (Vec<Detection>, Vec<Detection>) {
+        let mut d = vec![part(0), other];
+        assert_first(&mut d, &RankingConfig::default(), 0.0, 1);
+        assert!(d[0].free_to_pick && !d[1].free_to_pick);
+        let mut alone = vec![part(0)];
+        rank_by_view(&mut alone, &RankingConfig::default(), 2.0, 0.0);
+        assert_eq!(crate::result::first_pick(&alone), None);
+        (d, alone)
+    }
+
     fn assert_reason(d: &Detection, text: &str) {
         assert!(d.rank_reason.contains(text), "{}", d.rank_reason);
     }
@@ -434,16 +450,11 @@ mod tests {
         // bracket lying on it claimed 69 % of that bracket's closer-fitting pose, nothing lay
         // on it, and it was the first pick; its part is 43 % visible.
         let contested = |h| with_view(seen(h, 0.98, 0.0, 0.0, 40.6), |v| v.contested = 0.69);
-        let mut d = vec![contested(0), seen(1, 0.9, 0.0, 0.0, 17.4)];
-        assert_first(&mut d, &RankingConfig::default(), 0.0, 1);
-        assert!(d[0].free_to_pick && !d[1].free_to_pick);
+        let (d, _) = never_free(contested, seen(1, 0.9, 0.0, 0.0, 17.4));
         assert_reason(
             &d[1],
             "69 % of a closer-fitting pose of another part claimed",
         );
-        let mut alone = vec![contested(0)];
-        rank_by_view(&mut alone, &RankingConfig::default(), 2.0, 0.0);
-        assert_eq!(crate::result::first_pick(&alone), None);
         // Under the bound it is free.
         let mut below = vec![with_view(seen(0, 0.98, 0.0, 0.0, 40.6), |v| {
             v.contested = 0.5
@@ -458,13 +469,8 @@ mod tests {
         // with 44.5 % of its visible surface under another part, was picked first; ground
         // truth says under half of it shows. Behind a free part it ranks second.
         let covered = |h| with_view(seen(h, 0.51, 0.0, 0.0, 20.0), |v| v.covered = 0.445);
-        let mut d = vec![covered(0), seen(1, 0.6, 0.0, 0.0, 5.0)];
-        assert_first(&mut d, &RankingConfig::default(), 0.0, 1);
-        assert!(d[0].free_to_pick && !d[1].free_to_pick);
-        let mut alone = vec![covered(0)];
-        rank_by_view(&mut alone, &RankingConfig::default(), 2.0, 0.0);
+        let (_, mut alone) = never_free(covered, seen(1, 0.6, 0.0, 0.0, 5.0));
         assert!(!alone[0].free_to_pick, "{}", alone[0].rank_reason);
-        assert_eq!(crate::result::first_pick(&alone), None);
         assert_reason(&alone[0], "not free (44.5 %");
         // The same part free enough under a looser bound is picked.
         let loose = RankingConfig {
