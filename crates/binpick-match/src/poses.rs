@@ -3,7 +3,9 @@
 
 use std::collections::HashMap;
 
-use nalgebra::{Isometry3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
+use nalgebra::{
+    Isometry3, Point3, Quaternion, Translation3, Unit, UnitQuaternion, Vector3, Vector4,
+};
 
 use crate::MatchError;
 use crate::ppf::Vote;
@@ -104,6 +106,21 @@ impl Symmetries {
             .fold(f64::INFINITY, f64::min)
     }
 
+    /// The symmetry `S` whose `b * S` is rotated least from `a` (first in symmetry order on
+    /// ties).
+    pub fn closest(&self, a: &Isometry3<f64>, b: &Isometry3<f64>) -> Isometry3<f64> {
+        let mut best = Isometry3::identity();
+        let mut best_angle = f64::INFINITY;
+        for s in &self.transforms {
+            let angle = a.rotation.angle_to(&(b.rotation * s.rotation));
+            if angle < best_angle - 1e-12 {
+                best = *s;
+                best_angle = angle;
+            }
+        }
+        best
+    }
+
     /// The equivalent pose `pose * S` whose rotation is closest to the identity: one pose per
     /// equivalence class (first in symmetry order on ties).
     pub fn canonical(&self, pose: &Isometry3<f64>) -> Isometry3<f64> {
@@ -152,7 +169,7 @@ impl PoseClustering {
 /// Votes that agree on one pose.
 #[derive(Clone, Debug, PartialEq)]
 pub struct PoseCluster {
-    /// The pose of the cluster's strongest vote, model -> scene.
+    /// The vote-weighted mean pose of its members, model -> scene.
     pub pose: Isometry3<f64>,
     /// Summed votes of its members.
     pub votes: u32,
@@ -162,8 +179,11 @@ pub struct PoseCluster {
 
 /// Groups `votes` (any order) into clusters, strongest first: each vote, strongest first,
 /// joins the first cluster whose pose is within the tolerances (the part's centre `centre`,
-/// model frame, moved by both poses; rotation up to symmetry), or starts a new one.
-/// Deterministic: ties are broken by the votes' order.
+/// model frame, moved by both poses; rotation up to symmetry), or starts a new one. A
+/// cluster's pose is the vote-weighted mean of its members' (each taken in the symmetric
+/// form closest to the cluster's first; Drost et al. 2010, Vidal et al. 2018): one vote's
+/// pose carries its reference point's normal and rotation bin errors, the mean averages
+/// them out. Deterministic: ties are broken by the votes' order.
 pub fn cluster_poses(
     votes: &[Vote],
     centre: &Point3<f64>,
@@ -177,6 +197,8 @@ pub fn cluster_poses(
     let max_angle = tolerances.rotation_deg.to_radians();
     let mut clusters: Vec<PoseCluster> = Vec::new();
     let mut centres: Vec<Point3<f64>> = Vec::new();
+    // Per cluster: vote-weighted sums of its members' translations and quaternions.
+    let mut sums: Vec<(Vector3<f64>, Vector4<f64>, f64)> = Vec::new();
     let mut grid: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
     let key = |p: &Point3<f64>| {
         [
@@ -216,10 +238,16 @@ pub fn cluster_poses(
             Some(ci) => {
                 clusters[ci].votes += v.votes;
                 clusters[ci].members += 1;
+                let first = &clusters[ci].pose;
+                let member = v.pose * symmetries.closest(first, &v.pose);
+                add_pose(&mut sums[ci], first, &member, v.votes);
             }
             None => {
                 grid.entry(k).or_default().push(clusters.len());
                 centres.push(c);
+                let mut sum = (Vector3::zeros(), Vector4::zeros(), 0.0);
+                add_pose(&mut sum, &v.pose, &v.pose, v.votes);
+                sums.push(sum);
                 clusters.push(PoseCluster {
                     pose: v.pose,
                     votes: v.votes,
@@ -228,6 +256,102 @@ pub fn cluster_poses(
             }
         }
     }
+    for (c, (t, q, w)) in clusters.iter_mut().zip(&sums) {
+        if *w > 0.0 {
+            let q = UnitQuaternion::from_quaternion(Quaternion::from(*q / *w));
+            c.pose = Isometry3::from_parts(Translation3::from(*t / *w), q);
+        }
+    }
     clusters.sort_by_key(|c| std::cmp::Reverse(c.votes));
     Ok(clusters)
+}
+
+/// Adds `pose`, weighted by `votes`, to a cluster's sums of translations and quaternions,
+/// the quaternion on the hemisphere of the cluster's `first` (q and -q are one rotation).
+fn add_pose(
+    sum: &mut (Vector3<f64>, Vector4<f64>, f64),
+    first: &Isometry3<f64>,
+    pose: &Isometry3<f64>,
+    votes: u32,
+) {
+    let w = f64::from(votes);
+    let q = pose.rotation.into_inner().coords;
+    let sign = if first.rotation.into_inner().coords.dot(&q) < 0.0 {
+        -1.0
+    } else {
+        1.0
+    };
+    sum.0 += w * pose.translation.vector;
+    sum.1 += (sign * w) * q;
+    sum.2 += w;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn vote(deg_about_z: f64, t: [f64; 3], votes: u32, reference: u32) -> Vote {
+        Vote {
+            pose: Isometry3::from_parts(
+                Translation3::new(t[0], t[1], t[2]),
+                UnitQuaternion::from_axis_angle(&Vector3::z_axis(), deg_about_z.to_radians()),
+            ),
+            votes,
+            reference,
+        }
+    }
+
+    fn wide() -> PoseClustering {
+        PoseClustering {
+            translation_mm: 10.0,
+            rotation_deg: 24.0,
+        }
+    }
+
+    fn degrees_about_z(pose: &Isometry3<f64>) -> f64 {
+        let (_, _, yaw) = pose.rotation.euler_angles();
+        yaw.to_degrees()
+    }
+
+    #[test]
+    fn a_clusters_pose_is_the_vote_weighted_mean_of_its_members() {
+        let votes = [
+            vote(0.0, [0.0, 0.0, 0.0], 3, 0),
+            vote(8.0, [4.0, 0.0, 0.0], 1, 1),
+            // Another part, 50 mm away: its own cluster, its own pose.
+            vote(40.0, [50.0, 0.0, 0.0], 2, 2),
+        ];
+        let c = cluster_poses(&votes, &Point3::origin(), &Symmetries::none(), &wide()).unwrap();
+        assert_eq!(c.len(), 2);
+        assert_eq!((c[0].votes, c[0].members), (4, 2));
+        assert!((c[0].pose.translation.vector - Vector3::new(1.0, 0.0, 0.0)).norm() < 1e-9);
+        assert!(
+            (degrees_about_z(&c[0].pose) - 2.0).abs() < 0.01,
+            "{:?}",
+            c[0].pose
+        );
+        assert_eq!(c[1].pose, votes[2].pose);
+    }
+
+    #[test]
+    fn members_are_averaged_in_the_symmetric_form_closest_to_the_first() {
+        // A part with a half-turn symmetry about z: 184 deg is 4 deg from the first vote.
+        let half_turn = Isometry3::rotation(Vector3::z() * std::f64::consts::PI);
+        let symmetric = Symmetries::new(&[half_turn]);
+        let votes = [
+            vote(0.0, [0.0, 0.0, 0.0], 1, 0),
+            vote(184.0, [0.0, 0.0, 0.0], 1, 1),
+        ];
+        let c = cluster_poses(&votes, &Point3::origin(), &symmetric, &wide()).unwrap();
+        assert_eq!(c.len(), 1);
+        assert!(
+            (degrees_about_z(&c[0].pose) - 2.0).abs() < 0.01,
+            "{:?}",
+            c[0].pose
+        );
+        // Without the symmetry the two are different poses.
+        let c = cluster_poses(&votes, &Point3::origin(), &Symmetries::none(), &wide()).unwrap();
+        assert_eq!(c.len(), 2);
+        assert_eq!(c[0].pose, votes[0].pose);
+    }
 }
