@@ -100,25 +100,23 @@ impl Symmetries {
 
     /// Smallest rotation angle between `a` and `b * S` over the symmetries, radians.
     pub fn angle(&self, a: &Isometry3<f64>, b: &Isometry3<f64>) -> f64 {
-        self.transforms
-            .iter()
-            .map(|s| a.rotation.angle_to(&(b.rotation * s.rotation)))
-            .fold(f64::INFINITY, f64::min)
+        self.closest(a, b).1
     }
 
     /// The symmetry `S` whose `b * S` is rotated least from `a` (first in symmetry order on
-    /// ties).
-    pub fn closest(&self, a: &Isometry3<f64>, b: &Isometry3<f64>) -> Isometry3<f64> {
+    /// ties within 1e-12 rad), and that smallest angle, radians.
+    pub fn closest(&self, a: &Isometry3<f64>, b: &Isometry3<f64>) -> (Isometry3<f64>, f64) {
         let mut best = Isometry3::identity();
-        let mut best_angle = f64::INFINITY;
+        let (mut best_angle, mut smallest) = (f64::INFINITY, f64::INFINITY);
         for s in &self.transforms {
             let angle = a.rotation.angle_to(&(b.rotation * s.rotation));
             if angle < best_angle - 1e-12 {
                 best = *s;
                 best_angle = angle;
             }
+            smallest = smallest.min(angle);
         }
-        best
+        (best, smallest)
     }
 
     /// The equivalent pose `pose * S` whose rotation is closest to the identity: one pose per
@@ -219,28 +217,26 @@ pub fn cluster_poses(
                         continue;
                     };
                     for &ci in list {
-                        if joined.is_some_and(|j| j < ci) {
+                        if joined.is_some_and(|(j, _)| j < ci) || (centres[ci] - c).norm() >= cell {
                             continue;
                         }
-                        if (centres[ci] - c).norm() < cell
-                            && symmetries.angle(&clusters[ci].pose, &v.pose) < max_angle
-                        {
-                            joined = Some(ci);
+                        let (s, angle) = symmetries.closest(&clusters[ci].pose, &v.pose);
+                        if angle < max_angle {
+                            joined = Some((ci, s));
                         }
                     }
-                    if joined == Some(0) {
+                    if joined.is_some_and(|(j, _)| j == 0) {
                         break 'search;
                     }
                 }
             }
         }
         match joined {
-            Some(ci) => {
+            Some((ci, s)) => {
                 clusters[ci].votes += v.votes;
                 clusters[ci].members += 1;
-                let first = &clusters[ci].pose;
-                let member = v.pose * symmetries.closest(first, &v.pose);
-                add_pose(&mut sums[ci], first, &member, v.votes);
+                // The member in its symmetric form closest to the cluster's first pose.
+                add_pose(&mut sums[ci], &clusters[ci].pose, &(v.pose * s), v.votes);
             }
             None => {
                 grid.entry(k).or_default().push(clusters.len());
