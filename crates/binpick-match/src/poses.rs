@@ -195,8 +195,9 @@ pub fn cluster_poses(
     let max_angle = tolerances.rotation_deg.to_radians();
     let mut clusters: Vec<PoseCluster> = Vec::new();
     let mut centres: Vec<Point3<f64>> = Vec::new();
-    // Per cluster: vote-weighted sums of its members' translations and quaternions.
-    let mut sums: Vec<(Vector3<f64>, Vector4<f64>, f64)> = Vec::new();
+    // Per cluster: vote-weighted sums of its members' translations and quaternions (the
+    // weights sum to the cluster's votes).
+    let mut sums: Vec<(Vector3<f64>, Vector4<f64>)> = Vec::new();
     let mut grid: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
     let key = |p: &Point3<f64>| {
         [
@@ -241,7 +242,7 @@ pub fn cluster_poses(
             None => {
                 grid.entry(k).or_default().push(clusters.len());
                 centres.push(c);
-                let mut sum = (Vector3::zeros(), Vector4::zeros(), 0.0);
+                let mut sum = (Vector3::zeros(), Vector4::zeros());
                 add_pose(&mut sum, &v.pose, &v.pose, v.votes);
                 sums.push(sum);
                 clusters.push(PoseCluster {
@@ -252,10 +253,11 @@ pub fn cluster_poses(
             }
         }
     }
-    for (c, (t, q, w)) in clusters.iter_mut().zip(&sums) {
-        if *w > 0.0 {
-            let q = UnitQuaternion::from_quaternion(Quaternion::from(*q / *w));
-            c.pose = Isometry3::from_parts(Translation3::from(*t / *w), q);
+    for (c, (t, q)) in clusters.iter_mut().zip(&sums) {
+        if c.votes > 0 {
+            let w = f64::from(c.votes);
+            let q = UnitQuaternion::from_quaternion(Quaternion::from(*q / w));
+            c.pose = Isometry3::from_parts(Translation3::from(*t / w), q);
         }
     }
     clusters.sort_by_key(|c| std::cmp::Reverse(c.votes));
@@ -265,7 +267,7 @@ pub fn cluster_poses(
 /// Adds `pose`, weighted by `votes`, to a cluster's sums of translations and quaternions,
 /// the quaternion on the hemisphere of the cluster's `first` (q and -q are one rotation).
 fn add_pose(
-    sum: &mut (Vector3<f64>, Vector4<f64>, f64),
+    sum: &mut (Vector3<f64>, Vector4<f64>),
     first: &Isometry3<f64>,
     pose: &Isometry3<f64>,
     votes: u32,
@@ -279,7 +281,6 @@ fn add_pose(
     };
     sum.0 += w * pose.translation.vector;
     sum.1 += (sign * w) * q;
-    sum.2 += w;
 }
 
 #[cfg(test)]

@@ -350,7 +350,6 @@ mod tests {
         assert_eq!(d[0].found_order().0, want, "{}", d[0].rank_reason);
     }
 
-    /// Asserts that a rank's reason says `text`.
     /// `part(0)` (a detection the default ranking does not free) behind the free `other`
     /// (hypothesis 1) ranks second and is not free; alone it gives no first pick. Returns
     /// both rankings: (behind `other`, alone).
@@ -367,6 +366,7 @@ mod tests {
         (d, alone)
     }
 
+    /// Asserts that a rank's reason says `text`.
     fn assert_reason(d: &Detection, text: &str) {
         assert!(d.rank_reason.contains(text), "{}", d.rank_reason);
     }
