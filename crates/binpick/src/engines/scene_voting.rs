@@ -54,8 +54,14 @@ const TURN_APART_SHARE: f64 = 0.5;
 /// ... there both must show the sensor at least this many surface points, unhidden ...
 const TURN_MIN_APART_POINTS: usize = 30;
 /// ... and the turn replaces the part when its residual there is under this share of the
-/// part's.
+/// part's ...
 const TURN_CLOSER_SHARE: f64 = 0.5;
+/// ... or when the sensor sees through at least this share of the part's surface there (and
+/// at least [`TURN_MIN_FREE_CELLS`] cells) and through none of the turn's: a flange end laid
+/// past the part's shorter one.
+const TURN_SEEN_THROUGH_SHARE: f64 = 0.05;
+/// The fewest cells seen through that count ([`TURN_SEEN_THROUGH_SHARE`]).
+const TURN_MIN_FREE_CELLS: u32 = 3;
 /// A pose of another part contests a part taken when its mean fit is at least this much
 /// higher ([`SceneVoting::contested`]; the pose it displaced on seed 16's
 /// `brackets-bin-2mm-002` fitted 0.94 against 0.87).
@@ -236,8 +242,8 @@ impl SceneVoting<'_> {
         let refusal = match (explanation.rejected[0], explanation.taken.first()) {
             (None, _) => None,
             (Some(Rejection::Explained), Some(&k)) if replaced.contains(&0) => Some(format!(
-                "NearSymmetry: its near-symmetric turn {k} fits the scan closer where the two \
-                 differ"
+                "NearSymmetry: where the two differ, its near-symmetric turn {k} fits the scan \
+                 closer or the sensor sees through this pose"
             )),
             (Some(Rejection::Explained), Some(&k)) => Some(format!(
                 "NearSymmetry: its near-symmetric turn {} explains more of the scene ({} \
@@ -613,11 +619,34 @@ impl SceneVoting<'_> {
                         &candidates[i].pose,
                         apart,
                     );
+                    let closer = ni.min(nj) >= TURN_MIN_APART_POINTS && rj < TURN_CLOSER_SHARE * ri;
+                    let seen_through = || {
+                        let si = verifier.score_apart_from(
+                            &index,
+                            &candidates[i].pose,
+                            &candidates[j].pose,
+                            apart,
+                        );
+                        let sj = verifier.score_apart_from(
+                            &index,
+                            &candidates[j].pose,
+                            &candidates[i].pose,
+                            apart,
+                        );
+                        tracing::trace!(
+                            taken = i,
+                            turn = j,
+                            free_i = si.free_space,
+                            visible_i = si.visible,
+                            free_j = sj.free_space,
+                            "seen through where they differ"
+                        );
+                        sj.free_space == 0
+                            && si.free_space >= TURN_MIN_FREE_CELLS
+                            && si.free_space_ratio() >= TURN_SEEN_THROUGH_SHARE
+                    };
                     tracing::trace!(taken = i, turn = j, ri, ni, rj, nj, "where they differ");
-                    if ni.min(nj) >= TURN_MIN_APART_POINTS
-                        && rj < TURN_CLOSER_SHARE * ri
-                        && best.is_none_or(|(b, _)| rj / ri < b)
-                    {
+                    if (closer || seen_through()) && best.is_none_or(|(b, _)| rj / ri < b) {
                         best = Some((rj / ri, j));
                     }
                 }

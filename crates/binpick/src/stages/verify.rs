@@ -495,6 +495,30 @@ impl<'a> Verifier<'a> {
     }
 
     /// The view verdict of `pose`.
+    /// The view's score of the part's surface at `pose` where it lies farther than
+    /// `apart_mm` from its surface at `other` (model frame indexed by `surface_index`): the
+    /// view's judgement of the surface two poses of the part do not share.
+    pub(crate) fn score_apart_from(
+        &self,
+        surface_index: &binpick_match::GridIndex,
+        pose: &Isometry3<f64>,
+        other: &Isometry3<f64>,
+        apart_mm: f64,
+    ) -> ViewScore {
+        let to_other = other.inverse() * pose;
+        let apart = (apart_mm * apart_mm) as f32;
+        let dense = &self.model.dense;
+        let (points, normals) = dense
+            .points
+            .iter()
+            .zip(&dense.normals)
+            .filter(|(p, _)| !surface_index.any_within(&transform_point(&to_other, p), apart))
+            .map(|(p, n)| (*p, *n))
+            .unzip();
+        self.grid
+            .score(&OrientedPoints { points, normals }, pose, &self.view)
+    }
+
     pub(crate) fn score(&self, pose: &Isometry3<f64>) -> ViewScore {
         let mut s = self.grid.score(&self.model.dense, pose, &self.view);
         if !self.sink_planes.is_empty() {
