@@ -30,6 +30,23 @@ struct BeltScan {
 }
 
 impl BeltScan {
+    /// Whether `d` lies within a tenth of the part's diameter of `truth`.
+    fn near(&self, truth: &Isometry3<f64>, d: &binpick::Detection) -> bool {
+        pose::translation_error_mm(truth, &d.pose) < 0.1 * self.diameter_mm
+    }
+
+    /// The pickable parts `r` reports half turned: near the truth, more than 150 deg off.
+    fn reported_turned(&self, r: &binpick::Recognition) -> Vec<&Isometry3<f64>> {
+        self.pickable
+            .iter()
+            .filter(|t| {
+                r.detections
+                    .iter()
+                    .any(|d| self.near(t, d) && pose::rotation_error_deg(t, &d.pose) > 150.0)
+            })
+            .collect()
+    }
+
     /// A recognizer for the same part on the default parameters as `change` leaves them.
     fn recognizer_with(&self, change: impl FnOnce(&mut Params)) -> Recognizer {
         let mut params = Params::default();
@@ -184,23 +201,12 @@ fn a_bracket_whose_turn_the_view_prefers_is_found_the_right_way_round() {
         Params::default(),
     );
     let r = s.recognizer.recognize(&s.scene).unwrap();
-    let near = |truth: &Isometry3<f64>, d: &binpick::Detection| {
-        pose::translation_error_mm(truth, &d.pose) < 0.1 * s.diameter_mm
-    };
     let right = |truth: &Isometry3<f64>| {
         r.detections
             .iter()
-            .any(|d| near(truth, d) && pose::rotation_error_deg(truth, &d.pose) < 10.0)
+            .any(|d| s.near(truth, d) && pose::rotation_error_deg(truth, &d.pose) < 10.0)
     };
-    let turned: Vec<&Isometry3<f64>> = s
-        .pickable
-        .iter()
-        .filter(|t| {
-            r.detections
-                .iter()
-                .any(|d| near(t, d) && pose::rotation_error_deg(t, &d.pose) > 150.0)
-        })
-        .collect();
+    let turned = s.reported_turned(&r);
     assert!(
         turned.is_empty(),
         "pickable brackets reported turned: {turned:?}"
@@ -229,18 +235,7 @@ fn a_bracket_whose_turn_the_sensor_sees_through_where_they_differ_is_turned_back
         Params::default(),
     );
     let r = s.recognizer.recognize(&s.scene).unwrap();
-    let near = |truth: &Isometry3<f64>, d: &binpick::Detection| {
-        pose::translation_error_mm(truth, &d.pose) < 0.1 * s.diameter_mm
-    };
-    let turned: Vec<&Isometry3<f64>> = s
-        .pickable
-        .iter()
-        .filter(|t| {
-            r.detections
-                .iter()
-                .any(|d| near(t, d) && pose::rotation_error_deg(t, &d.pose) > 150.0)
-        })
-        .collect();
+    let turned = s.reported_turned(&r);
     assert!(
         turned.is_empty(),
         "pickable brackets reported turned: {turned:?}"
