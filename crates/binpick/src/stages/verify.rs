@@ -494,7 +494,6 @@ impl<'a> Verifier<'a> {
             .map_err(pcl("refinement ICP"))
     }
 
-    /// The view verdict of `pose`.
     /// The view's score of the part's surface at `pose` where it lies farther than
     /// `apart_mm` from its surface at `other` (model frame indexed by `surface_index`): the
     /// view's judgement of the surface two poses of the part do not share.
@@ -519,6 +518,7 @@ impl<'a> Verifier<'a> {
             .score(&OrientedPoints { points, normals }, pose, &self.view)
     }
 
+    /// The view verdict of `pose`.
     pub(crate) fn score(&self, pose: &Isometry3<f64>) -> ViewScore {
         let mut s = self.grid.score(&self.model.dense, pose, &self.view);
         if !self.sink_planes.is_empty() {
