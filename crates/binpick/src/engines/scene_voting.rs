@@ -646,8 +646,12 @@ impl SceneVoting<'_> {
                             && si.free_space_ratio() >= TURN_SEEN_THROUGH_SHARE
                     };
                     tracing::trace!(taken = i, turn = j, ri, ni, rj, nj, "where they differ");
-                    if (closer || seen_through()) && best.is_none_or(|(b, _)| rj / ri < b) {
-                        best = Some((rj / ri, j));
+                    // Rivals rank by residual share; one qualifying by free space alone may
+                    // have no judged points on the taken part (ri = 0): last, not NaN.
+                    let share = if ri > 0.0 { rj / ri } else { f64::INFINITY };
+                    // The renders of `seen_through` only for a rival that would rank first.
+                    if best.is_none_or(|(b, _)| share < b) && (closer || seen_through()) {
+                        best = Some((share, j));
                     }
                 }
                 best
