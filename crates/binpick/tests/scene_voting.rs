@@ -42,6 +42,15 @@ impl BeltScan {
             .any(|d| self.near(truth, d) && pose::rotation_error_deg(truth, &d.pose) < 10.0)
     }
 
+    /// Fails naming the pickable parts `r` reports half turned.
+    fn assert_none_turned(&self, r: &binpick::Recognition) {
+        let turned = self.reported_turned(r);
+        assert!(
+            turned.is_empty(),
+            "pickable brackets reported turned: {turned:?}"
+        );
+    }
+
     /// The pickable parts `r` reports half turned: near the truth, more than 150 deg off.
     fn reported_turned(&self, r: &binpick::Recognition) -> Vec<&Isometry3<f64>> {
         self.pickable
@@ -193,6 +202,19 @@ fn scanned_part(kind: PartKind, s: &BeltScan) -> binpick::Part {
     part
 }
 
+/// Seed `seed`'s scan `index` of `brackets-bin-2mm` and what defaults recognise in it.
+fn recognized_in_bracket_bin(seed: u64, index: usize) -> (BeltScan, binpick::Recognition) {
+    let s = seeded_scan(
+        PartKind::Bracket,
+        "brackets-bin-2mm",
+        seed,
+        index,
+        Params::default(),
+    );
+    let r = s.recognizer.recognize(&s.scene).unwrap();
+    (s, r)
+}
+
 #[test]
 fn a_bracket_whose_turn_the_view_prefers_is_found_the_right_way_round() {
     // Seed 4's `brackets-bin-2mm-006`: a bracket in full view whose half turn the 2 mm view
@@ -200,19 +222,8 @@ fn a_bracket_whose_turn_the_view_prefers_is_found_the_right_way_round() {
     // turn's longer flange lies in a shadow). Where the two differ, at the flanges' ends,
     // the scan lies much closer to the right pose, and the scene explanation's pick is
     // settled there.
-    let s = seeded_scan(
-        PartKind::Bracket,
-        "brackets-bin-2mm",
-        4,
-        6,
-        Params::default(),
-    );
-    let r = s.recognizer.recognize(&s.scene).unwrap();
-    let turned = s.reported_turned(&r);
-    assert!(
-        turned.is_empty(),
-        "pickable brackets reported turned: {turned:?}"
-    );
+    let (s, r) = recognized_in_bracket_bin(4, 6);
+    s.assert_none_turned(&r);
     let found = s
         .pickable
         .iter()
@@ -233,19 +244,8 @@ fn a_bracket_whose_turn_the_sensor_sees_through_where_they_differ_is_turned_back
     // pose's 4.4, both near the cap), but the sensor sees through 3 of the turn's 30 view
     // cells there (its longer flange laid past the part's shorter one) and through none of
     // the right pose's: the turn settling now turns it back.
-    let s = seeded_scan(
-        PartKind::Bracket,
-        "brackets-bin-2mm",
-        2,
-        8,
-        Params::default(),
-    );
-    let r = s.recognizer.recognize(&s.scene).unwrap();
-    let turned = s.reported_turned(&r);
-    assert!(
-        turned.is_empty(),
-        "pickable brackets reported turned: {turned:?}"
-    );
+    let (s, r) = recognized_in_bracket_bin(2, 8);
+    s.assert_none_turned(&r);
 }
 
 #[test]
@@ -255,14 +255,7 @@ fn a_pose_laid_across_two_brackets_gives_way_to_the_closer_fitting_pose_it_displ
     // against the bracket's own pose's 328 and was taken; the right pose, fitting the
     // surface they share more closely (0.84 against 0.77), was refused as its repeat. Left
     // out of the scene explanation, the pose laid across gives way to it.
-    let s = seeded_scan(
-        PartKind::Bracket,
-        "brackets-bin-2mm",
-        13,
-        0,
-        Params::default(),
-    );
-    let r = s.recognizer.recognize(&s.scene).unwrap();
+    let (s, r) = recognized_in_bracket_bin(13, 0);
     let missed: Vec<&Isometry3<f64>> = s
         .pickable
         .iter()
