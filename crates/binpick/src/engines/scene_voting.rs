@@ -985,7 +985,8 @@ impl SceneVoting<'_> {
         mut explanation: binpick_match::Explanation,
     ) -> Result<binpick_match::Explanation> {
         let mut excluded = vec![false; candidates.len()];
-        let mut worth = self.explained_worth(candidates, &explanation.taken);
+        // Worked out only when a part is contested (most scans have none).
+        let mut worth: Option<f64> = None;
         for _ in 0..CONTEST_ROUNDS {
             let mut trial = excluded.clone();
             // Cells of the parts left out: the contest's fit margin over them is what the
@@ -1006,18 +1007,21 @@ impl SceneVoting<'_> {
             if left_out_cells == 0 {
                 break;
             }
+            let current =
+                *worth.get_or_insert_with(|| self.explained_worth(candidates, &explanation.taken));
             let again = self.explain_without(candidates, already_explained, accept, &trial)?;
             let again_worth = self.explained_worth(candidates, &again.taken);
             tracing::debug!(
-                worth,
+                worth = current,
                 again_worth,
                 left_out_cells,
                 "parts contesting closer poses left out"
             );
-            if again_worth < worth - CONTEST_FIT_MARGIN * f64::from(left_out_cells) {
+            if again_worth < current - CONTEST_FIT_MARGIN * f64::from(left_out_cells) {
                 break;
             }
-            (explanation, excluded, worth) = (again, trial, again_worth);
+            (explanation, excluded) = (again, trial);
+            worth = Some(again_worth);
         }
         Ok(explanation)
     }
