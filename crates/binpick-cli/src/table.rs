@@ -126,11 +126,12 @@ pub fn voting_summary(v: &binpick::VotingReport) -> String {
         )
     });
     format!(
-        "{}: {} samples, {} votes, {} hypotheses, {} candidates verified, {} accepted; refused: {} too little surface, {} low visibility, {} free space, {} sunk into support, {} on support, {} no outline, {} poor fit, {} repeats{refused}",
+        "{}: {} samples, {} votes, {} hypotheses ({} laid from flat faces), {} candidates verified, {} accepted; refused: {} too little surface, {} low visibility, {} free space, {} sunk into support, {} on support, {} no outline, {} poor fit, {} repeats, {} laid from a face against the scan's normals{refused}",
         v.sensor,
         v.scene_samples,
         v.votes,
         v.hypotheses,
+        v.face_hypotheses,
         v.candidates,
         v.accepted,
         v.rejected_too_little_surface,
@@ -140,7 +141,8 @@ pub fn voting_summary(v: &binpick::VotingReport) -> String {
         v.rejected_on_support,
         v.rejected_no_outline,
         v.rejected_poor_fit,
-        v.rejected_explained
+        v.rejected_explained,
+        v.rejected_face_normals
     )
 }
 

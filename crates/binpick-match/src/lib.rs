@@ -9,11 +9,14 @@
 //!   see, with free-space and missing-surface contradictions;
 //! - [`explain`]: hypotheses compete for scene surface; a greedy scene explanation keeps a
 //!   set of parts that explains the pile, each part once.
+//! - [`faces`]: pose hypotheses from flat faces (a scene patch laid on a model face of about
+//!   its size), where voting cannot place a part that shows one flat face.
 //!
 //! Lengths are millimetres, angles radians unless a name says degrees. Nothing here calls
 //! PCL: normals, down-sampling and ICP come from the caller (binpick uses PCL for them).
 
 pub mod explain;
+pub mod faces;
 pub mod index;
 pub mod poses;
 pub mod ppf;

@@ -716,6 +716,10 @@ pub struct VotingReport {
     pub votes: usize,
     /// Pose clusters verified.
     pub hypotheses: usize,
+    /// Of `hypotheses`, those laid from flat faces left unexplained after the voting rounds
+    /// (a scene patch on a model face of about its size).
+    #[serde(default)]
+    pub face_hypotheses: usize,
     /// Candidates that competed in the scene explanation (hypotheses plus their
     /// near-symmetry variants). Later-round candidates refused before it, as confirmed
     /// mostly by the support, are counted in `rejected_on_support` only.
@@ -745,6 +749,10 @@ pub struct VotingReport {
     pub rejected_poor_fit: usize,
     /// Refused: its surface is already explained by a taken part.
     pub rejected_explained: usize,
+    /// Refused before the explanation: laid from a flat face, it meets scan surface facing
+    /// another way on more than 3 % of its visible cells (not counted in `candidates`).
+    #[serde(default)]
+    pub rejected_face_normals: usize,
     /// The model is a scan whose near-symmetric turn shows the side its scanner never saw
     /// ([`Part::turn_hides_scanned_side`](crate::Part::turn_hides_scanned_side)): no
     /// detection can be told from its turn, and none is free to pick unless

@@ -22,7 +22,10 @@ use nalgebra::Isometry3;
 use rayon::prelude::*;
 
 use binpick_cloud::Point;
-use binpick_match::{ExplainConfig, OrientedPoints, Rejection, Sensor, ViewScore, explain_scene};
+use binpick_match::faces::{FlatRegions, Laying, flat_patches, laid_poses};
+use binpick_match::{
+    ExplainConfig, OrientedPoints, PoseCluster, Rejection, Sensor, ViewScore, explain_scene,
+};
 
 use crate::deadline::{Deadline, ms};
 use crate::error::Result;
@@ -75,6 +78,23 @@ const CONTEST_FIT_MARGIN: f64 = 0.03;
 const CONTEST_LEAVE_OUT_SHARE: f64 = 0.6;
 /// ... at most this many times.
 const CONTEST_ROUNDS: usize = 3;
+/// Flat faces: neighbouring samples within this many sampling steps grow one region ...
+const FACE_CONNECT_STEPS: f64 = 1.5;
+/// ... when their normals are within this angle of the region's seed's, deg ...
+const FACE_MAX_ANGLE_DEG: f64 = 15.0;
+/// ... and they lie within this many tolerances of its plane.
+const FACE_OFFSET_TOLERANCES: f64 = 2.0;
+/// Fewer samples make no flat face (model or scene).
+const FACE_MIN_SAMPLES: usize = 12;
+/// A scene patch is laid on a model face it covers at least this share of (in samples).
+const FACE_MIN_COVER: f64 = 0.4;
+/// Lengths of patch and face agree within this many sampling steps.
+const FACE_SLACK_STEPS: f64 = 2.0;
+/// A part laid from a face is refused when more than this share of its visible cells
+/// meet scan surface facing another way.
+const FACE_MAX_WRONG_NORMAL: f64 = 0.03;
+/// Patches and faces filling less of their extent's rectangle are not laid.
+const FACE_MIN_FILL: f64 = 0.5;
 
 /// A scene sample is explained by a taken part within this many view tolerances of its
 /// surface (later voting rounds skip it).
@@ -357,19 +377,47 @@ impl SceneVoting<'_> {
             if more.clusters.is_empty() {
                 break;
             }
-            let (judged, laid) = Self::off_surfaces(
+            self.later_round(
                 &verifier,
-                self.candidates(&verifier, &accept, &more, offset)?,
-            );
-            laid_on_surfaces += laid;
-            let (seen, on_support): (Vec<Candidate>, Vec<Candidate>) =
-                judged.into_iter().partition(|c| {
-                    c.score.support_explained_ratio() <= p.verify.max_explained_by_support
-                });
-            report.rejected_on_support += on_support.len();
-            candidates.extend(seen);
-            offset += more.clusters.len();
+                &accept,
+                &more,
+                &mut offset,
+                &mut candidates,
+                &mut report,
+                &mut laid_on_surfaces,
+            )?;
             explanation = self.explain(&candidates, &verifier.support_explained, &accept)?;
+        }
+        // Flat faces left unexplained are laid on the model's flat faces of about their size
+        // (voting cannot place a flat face).
+        if p.voting.face_hypotheses > 0 && self.deadline.check("voting").is_ok() {
+            let rest = self.unexplained(&samples, &candidates, &explanation.taken)?;
+            let laid = self.face_hypotheses(&rest)?;
+            report.hypotheses += laid.clusters.len();
+            report.face_hypotheses = laid.clusters.len();
+            if !laid.clusters.is_empty() {
+                let first = candidates.len();
+                self.later_round(
+                    &verifier,
+                    &accept,
+                    &laid,
+                    &mut offset,
+                    &mut candidates,
+                    &mut report,
+                    &mut laid_on_surfaces,
+                )?;
+                // Laid by one face, a part must meet the scan's normals elsewhere too.
+                let before = candidates.len();
+                let mut k = 0;
+                candidates.retain(|c| {
+                    k += 1;
+                    k <= first
+                        || f64::from(c.score.wrong_normal)
+                            <= FACE_MAX_WRONG_NORMAL * f64::from(c.score.visible)
+                });
+                report.rejected_face_normals += before - candidates.len();
+                explanation = self.explain(&candidates, &verifier.support_explained, &accept)?;
+            }
         }
         let mut explanation = self.without_contested(
             &candidates,
@@ -425,6 +473,73 @@ impl SceneVoting<'_> {
             report,
             voting_ms,
             verify_ms: ms(lap.elapsed()),
+        })
+    }
+
+    /// A later round's hypotheses `more` judged and added to `candidates` (numbered from
+    /// `offset`, which moves past them), less those laid on wider surfaces and those the
+    /// support explains.
+    #[allow(clippy::too_many_arguments)]
+    fn later_round(
+        &self,
+        verifier: &Verifier,
+        accept: &ExplainConfig,
+        more: &Voted,
+        offset: &mut usize,
+        candidates: &mut Vec<Candidate>,
+        report: &mut VotingReport,
+        laid_on_surfaces: &mut usize,
+    ) -> Result<()> {
+        let (judged, laid) =
+            Self::off_surfaces(verifier, self.candidates(verifier, accept, more, *offset)?);
+        *laid_on_surfaces += laid;
+        let (seen, on_support): (Vec<Candidate>, Vec<Candidate>) =
+            judged.into_iter().partition(|c| {
+                c.score.support_explained_ratio() <= self.params.verify.max_explained_by_support
+            });
+        report.rejected_on_support += on_support.len();
+        candidates.extend(seen);
+        *offset += more.clusters.len();
+        Ok(())
+    }
+
+    /// Hypotheses that lay the model's flat faces on the flat patches of `rest` of about
+    /// their size (`binpick_match::faces`), best agreeing lengths first, at most
+    /// `voting.face_hypotheses`.
+    fn face_hypotheses(&self, rest: &OrientedPoints) -> Result<Voted> {
+        let step = self.scale.sampling_step_mm;
+        let regions = FlatRegions {
+            connect_mm: FACE_CONNECT_STEPS * step,
+            max_angle_deg: FACE_MAX_ANGLE_DEG,
+            max_offset_mm: FACE_OFFSET_TOLERANCES * self.scale.tolerance_mm,
+            min_points: FACE_MIN_SAMPLES,
+        };
+        let patches = flat_patches(rest, &regions).map_err(matching("scene faces"))?;
+        let clusters: Vec<PoseCluster> = if patches.is_empty() {
+            Vec::new()
+        } else {
+            let sampled = binpick_match::subsample_by_facing(&self.model.dense, step);
+            let faces = flat_patches(&sampled, &regions).map_err(matching("model faces"))?;
+            let laying = Laying {
+                slack_mm: FACE_SLACK_STEPS * step,
+                spacing_mm: step,
+                min_cover: FACE_MIN_COVER,
+                min_fill: FACE_MIN_FILL,
+                max_poses: self.params.voting.face_hypotheses,
+            };
+            laid_poses(&faces, &patches, &laying)
+                .into_iter()
+                .map(|pose| PoseCluster {
+                    pose,
+                    votes: 0,
+                    members: 0,
+                })
+                .collect()
+        };
+        Ok(Voted {
+            votes: 0,
+            first_rim: clusters.len(),
+            clusters,
         })
     }
 

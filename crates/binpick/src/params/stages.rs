@@ -480,6 +480,13 @@ stage_config! {
         /// round; 0 = no rim table). A rim is a thin face seen flat on: a sheet part lying
         /// on its side shows its sensor only the edge of its sheet.
         rim_hypotheses: usize = 10, count(0, 10_000, "");
+        /// Poses laid from flat faces verified after the voting rounds, at most (0 = none):
+        /// each flat patch of the scene left unexplained laid on the model's flat faces of
+        /// about its size. Pairs on one plane vote alike, so voting cannot place a part that
+        /// shows the sensor little but one face. Off by default: with 40 it found more parts
+        /// but laid plates on clutter faces, once as a first pick (README, Results,
+        /// "Forty-first pass").
+        face_hypotheses: usize = 0, count(0, 10_000, "");
         /// Voting rounds: each next round votes again over the scene samples that no part
         /// taken so far explains, so parts outvoted by their neighbours get hypotheses too.
         rounds: u32 = 2, count(1, 5, "");
