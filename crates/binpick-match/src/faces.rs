@@ -158,7 +158,8 @@ fn patch_of(pts: &[Vector3<f64>], facing: &Vector3<f64>) -> Option<FlatPatch> {
     let (c, s) = (angle.cos(), angle.sin());
     let mut axes = [c * major + s * minor, -s * major + c * minor];
     let mut extent = span(angle);
-    // The longer extent first (PCA's major axis is the wider spread, nearly always it).
+    // The longer extent first (the smallest rectangle's angle is taken within 90 deg, so
+    // either side may come out first).
     if extent[1][1] - extent[1][0] > extent[0][1] - extent[0][0] {
         axes = [axes[1], normal.cross(&axes[1])];
         extent = [extent[1], [-extent[0][1], -extent[0][0]]];
