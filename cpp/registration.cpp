@@ -13,6 +13,7 @@
 #include <array>
 #include <cmath>
 #include <limits>
+#include <stdexcept>
 #include <unordered_map>
 
 #include "binpick-pcl/src/ffi.rs.h"
@@ -21,11 +22,23 @@
 namespace binpick {
 
 // The same FLANN index pcl::KdTreeFLANN builds (single kd-tree, 15 points per leaf, exact
-// search), kept here so ICP can query all its source points in one call.
+// search), kept here so ICP can query all its source points in one pass. The index class
+// itself, which flann::Index builds for these parameters, so that queries pass a result set
+// of their own.
+using KdTree = flann::KDTreeSingleIndex<flann::L2_Simple<float>>;
+
 struct BatchIndex {
   std::vector<float> xyz;
-  std::unique_ptr<flann::Index<flann::L2_Simple<float>>> index;
+  std::unique_ptr<KdTree> index;
 };
+
+// A kd-tree over `xyz` (n points), built as flann::Index builds it.
+std::unique_ptr<KdTree> build_kd_tree(std::vector<float>& xyz, std::size_t n) {
+  auto tree = std::make_unique<KdTree>(flann::Matrix<float>(xyz.data(), n, 3),
+                                       flann::KDTreeSingleIndexParams(15));
+  tree->buildIndex();
+  return tree;
+}
 
 const BatchIndex& batch_index(const Cloud::Impl& cloud) {
   std::call_once(cloud.batch_once, [&cloud] {
@@ -37,9 +50,7 @@ const BatchIndex& batch_index(const Cloud::Impl& cloud) {
       b->xyz.push_back(p.y);
       b->xyz.push_back(p.z);
     }
-    b->index = std::make_unique<flann::Index<flann::L2_Simple<float>>>(
-        flann::Matrix<float>(b->xyz.data(), pts.size(), 3), flann::KDTreeSingleIndexParams(15));
-    b->index->buildIndex();
+    b->index = build_kd_tree(b->xyz, pts.size());
     cloud.batch = std::move(b);
   });
   return *cloud.batch;
@@ -58,26 +69,70 @@ float exclusive_bound(double max_sqr) {
   return std::nextafter(static_cast<float>(max_sqr), std::numeric_limits<float>::infinity());
 }
 
+// The k nearest points within a radius as FLANN's KNNRadiusResultSet keeps them, in a
+// sorted array instead of its heap: both keep the least k by (distance, index) and refuse a
+// point no nearer than the worst kept (or than the radius before k are kept), so the tree
+// search prunes alike and finds the same points, given in FLANN's sorted order.
+constexpr int MAX_RESULT_POINTS = 8;
+
+class SortedRadiusResultSet : public flann::ResultSet<float> {
+ public:
+  SortedRadiusResultSet(float radius, int capacity) : radius_(radius), capacity_(capacity) {}
+
+  void clear() { size_ = 0; }
+  bool full() const override { return true; }  // as KNNRadiusResultSet
+  float worstDist() const override {
+    return size_ == capacity_ ? dist_[capacity_ - 1] : radius_;
+  }
+  void addPoint(float dist, size_t index) override {
+    if (dist >= worstDist()) return;
+    int i = size_ == capacity_ ? capacity_ - 1 : size_++;
+    while (i > 0 && (dist < dist_[i - 1] || (dist == dist_[i - 1] && index < index_[i - 1]))) {
+      dist_[i] = dist_[i - 1];
+      index_[i] = index_[i - 1];
+      --i;
+    }
+    dist_[i] = dist;
+    index_[i] = index;
+  }
+  // Writes the points kept to `index` and `dist` (k entries each) as FLANN's radiusSearch
+  // does: the next entry after them marked unused (-1, infinity), the rest left as they are.
+  void copy(int* index, float* dist) const {
+    for (int m = 0; m < size_; ++m) {
+      index[m] = static_cast<int>(index_[m]);
+      dist[m] = dist_[m];
+    }
+    if (size_ < capacity_) {
+      index[size_] = -1;
+      dist[size_] = std::numeric_limits<float>::infinity();
+    }
+  }
+
+ private:
+  float radius_;
+  int capacity_;
+  int size_ = 0;
+  std::array<float, MAX_RESULT_POINTS> dist_{};
+  std::array<size_t, MAX_RESULT_POINTS> index_{};
+};
+
 // Each point's `k` nearest neighbours in `index` within the float `bound`, nearest first
-// (index -1 where fewer lie within it; entries k i to k i + k - 1), in one FLANN call.
+// (index -1 where fewer lie within it; entries k i to k i + k - 1): FLANN's radiusSearch
+// with `max_neighbors = k`, one query at a time with one result set.
 template <typename Points, typename Get>
 Nearest k_nearest_within(const BatchIndex& index, std::size_t n, const Points& points, Get get,
                          int k, float bound) {
-  std::vector<float> queries(n * 3);
+  if (k < 1 || k > MAX_RESULT_POINTS) throw std::logic_error("k_nearest_within: k out of range");
+  Nearest out{std::vector<int>(k * n, -1), std::vector<float>(k * n)};
+  flann::SearchParams params(-1, 0.0f);  // as pcl::KdTreeFLANN: exact
+  SortedRadiusResultSet found(bound, k);
   for (std::size_t i = 0; i < n; ++i) {
     const pcl::PointXYZ& p = get(points, i);
-    queries[3 * i] = p.x;
-    queries[3 * i + 1] = p.y;
-    queries[3 * i + 2] = p.z;
+    const float query[3] = {p.x, p.y, p.z};
+    found.clear();
+    index.index->findNeighbors(found, query, params);
+    found.copy(&out.index[k * i], &out.distance_sqr[k * i]);
   }
-  Nearest out{std::vector<int>(k * n, -1), std::vector<float>(k * n)};
-  if (n == 0) return out;
-  flann::Matrix<int> nn_mat(out.index.data(), n, k);
-  flann::Matrix<float> d2_mat(out.distance_sqr.data(), n, k);
-  flann::SearchParams params(-1, 0.0f);  // as pcl::KdTreeFLANN: exact, one core
-  params.max_neighbors = k;
-  index.index->radiusSearch(flann::Matrix<float>(queries.data(), n, 3), nn_mat, d2_mat, bound,
-                            params);
   return out;
 }
 
@@ -112,7 +167,7 @@ inline float flann_distance_sqr(const float* a, const pcl::PointXYZ& q) {
 constexpr double CERTIFY_MARGIN = 1e-4;
 
 // Points an ICP source point keeps from its last search.
-constexpr int ANCHOR_POINTS = 8;
+constexpr int ANCHOR_POINTS = MAX_RESULT_POINTS;
 
 // How far past the correspondence distance a source point with no target point within it
 // looks for its nearest one: while it moves less than the gap, it has no correspondence.
@@ -296,9 +351,7 @@ class BatchCorrespondenceEstimation
       deinitCompute();
       return;
     }
-    source.index = std::make_unique<flann::Index<flann::L2_Simple<float>>>(
-        flann::Matrix<float>(source.xyz.data(), n, 3), flann::KDTreeSingleIndexParams(15));
-    source.index->buildIndex();
+    source.index = build_kd_tree(source.xyz, n);
     std::vector<std::size_t> matched;
     for (std::size_t i = 0; i < n; ++i) {
       if (near.index[i] >= 0) matched.push_back(i);
