@@ -84,7 +84,7 @@ class SortedRadiusResultSet : public flann::ResultSet<float> {
   float worstDist() const override {
     return size_ == capacity_ ? dist_[capacity_ - 1] : radius_;
   }
-  void addPoint(float dist, size_t index) override {
+  void addPoint(float dist, std::size_t index) override {
     if (dist >= worstDist()) return;
     int i = size_ == capacity_ ? capacity_ - 1 : size_++;
     while (i > 0 && (dist < dist_[i - 1] || (dist == dist_[i - 1] && index < index_[i - 1]))) {
@@ -113,7 +113,7 @@ class SortedRadiusResultSet : public flann::ResultSet<float> {
   int capacity_;
   int size_ = 0;
   std::array<float, MAX_RESULT_POINTS> dist_{};
-  std::array<size_t, MAX_RESULT_POINTS> index_{};
+  std::array<std::size_t, MAX_RESULT_POINTS> index_{};
 };
 
 // Each point's `k` nearest neighbours in `index` within the float `bound`, nearest first
@@ -137,9 +137,9 @@ Nearest k_nearest_within(const BatchIndex& index, std::size_t n, const Points& p
 }
 
 // Each point's nearest neighbour in `index` whose squared distance is at most `max_sqr`
-// (index -1 when there is none), in one FLANN call. A search bounded this way prunes every
-// branch farther away, where PCL's unbounded one first walks to whatever is nearest however
-// far; both keep the first of equally near points in the same tree order.
+// (index -1 when there is none). A search bounded this way prunes every branch farther
+// away, where PCL's unbounded one first walks to whatever is nearest however far; both keep
+// the first of equally near points in the same tree order.
 template <typename Points, typename Get>
 Nearest nearest_within(const BatchIndex& index, std::size_t n, const Points& points, Get get,
                        double max_sqr) {
