@@ -32,7 +32,8 @@ struct BatchIndex {
   std::unique_ptr<KdTree> index;
 };
 
-// A kd-tree over `xyz` (n points), built as flann::Index builds it.
+// A kd-tree over `xyz` (n points), built as flann::Index builds it. The tree points into
+// `xyz`'s buffer: the caller keeps it alive and unmoved as long as the tree.
 std::unique_ptr<KdTree> build_kd_tree(std::vector<float>& xyz, std::size_t n) {
   auto tree = std::make_unique<KdTree>(flann::Matrix<float>(xyz.data(), n, 3),
                                        flann::KDTreeSingleIndexParams(15));
