@@ -1,9 +1,19 @@
 //! Compiles the C++ half of the bridge (`cpp/`, one translation unit per PCL module) with
-//! cxx-build and links the Debian PCL 1.13 libraries found through pkg-config.
+//! cxx-build against the Debian PCL 1.13 found through pkg-config.
+//!
+//! PCL's class templates are compiled from PCL's own headers (`PCL_NO_PRECOMPILE`, PCL's
+//! documented mode for custom point types) rather than linked from Debian's precompiled
+//! instantiations: loading libpcl_features, _segmentation, _sample_consensus and _filters costs
+//! every process about 60 ms of symbol relocations at start (230 000 of them, 117 000 in
+//! libpcl_features alone), whichever stage runs. Only libpcl_common is linked; the one
+//! non-template function the templates need from libpcl_features, `pcl::computePairFeatures`, is
+//! looked up in it when FPFH first runs (`cpp/features.cpp`). Debian compiled PCL for the
+//! baseline x86-64 (SSE2, no FMA) with OpenMP, and so is the bridge: the same arithmetic.
 
 use std::path::Path;
 
-/// PCL modules the bridge links, as pkg-config names (Debian's `libpcl-dev` ships `pcl_*.pc`).
+/// PCL modules whose headers the bridge compiles, as pkg-config names (Debian's `libpcl-dev`
+/// ships `pcl_*.pc`).
 const PCL_MODULES: &[&str] = &[
     "pcl_common",
     "pcl_search",
@@ -14,6 +24,9 @@ const PCL_MODULES: &[&str] = &[
     "pcl_segmentation",
     "pcl_registration",
 ];
+
+/// Libraries linked (pkg-config names).
+const LINKED: &[&str] = &["pcl_common", "liblz4"];
 
 /// C++ sources, split by PCL module so they compile in parallel and rebuild independently.
 const SOURCES: &[&str] = &[
@@ -27,7 +40,8 @@ const SOURCES: &[&str] = &[
 const HEADERS: &[&str] = &["cpp/include/binpick_pcl.h", "cpp/include/internal.h"];
 
 /// The reference pipeline (thesis Algorithms 1 and 2 written directly against PCL, one call per
-/// scene). Compiled as its own library because only it is built with OpenMP.
+/// scene). Compiled as its own library: the CLI and the tests build it (feature `reference`),
+/// a controller need not.
 const REFERENCE_SOURCES: &[&str] = &["cpp/reference/pipeline.cpp"];
 
 fn main() {
@@ -46,7 +60,7 @@ fn main() {
     for module in PCL_MODULES {
         match pkg_config::Config::new()
             .atleast_version("1.13")
-            .cargo_metadata(true)
+            .cargo_metadata(false)
             .probe(module)
         {
             Ok(lib) => include_dirs.extend(lib.include_paths),
@@ -59,6 +73,16 @@ fn main() {
                 );
                 std::process::exit(1);
             }
+        }
+    }
+    // Linked: PCL's non-template core, and LZ4, which FLANN's headers call.
+    for lib in LINKED {
+        if let Err(e) = pkg_config::Config::new().probe(lib) {
+            eprintln!(
+                "\nerror: {lib} was not found ({e}).\n\
+                 Install it with: sudo apt-get install -y libpcl-dev pkg-config (or ./scripts/setup)\n"
+            );
+            std::process::exit(1);
         }
     }
     include_dirs.sort();
@@ -76,6 +100,8 @@ fn main() {
     let mut build = cxx_build::bridge("src/ffi.rs");
     configure(&mut build, SOURCES, &include_dirs);
     build.compile("binpick_pcl_bridge");
+    // PCL's OpenMP estimators (NormalEstimationOMP, FPFHEstimationOMP) run their loops on it.
+    println!("cargo:rustc-link-lib=gomp");
 
     // The reference engine is optional (feature `reference`, on for the CLI and the tests).
     if std::env::var_os("CARGO_FEATURE_REFERENCE").is_none() {
@@ -85,11 +111,7 @@ fn main() {
     // include paths of the generated header.
     let mut reference = cxx_build::bridges(std::iter::empty::<&str>());
     configure(&mut reference, REFERENCE_SOURCES, &include_dirs);
-    // For its `#pragma omp parallel for` over clusters (thesis 4.4); the bridge uses no OpenMP
-    // of its own.
-    reference.flag("-fopenmp");
     reference.compile("binpick_pcl_reference");
-    println!("cargo:rustc-link-lib=gomp");
 }
 
 /// Sources and flags common to both libraries. PCL and Eigen headers are noisy, so they are
@@ -103,6 +125,10 @@ fn configure(build: &mut cc::Build, sources: &[&str], include_dirs: &[std::path:
         // PCL's arithmetic as Debian compiled it: a float multiply-add never fused into one
         // rounding (only possible where FMA is enabled), so counts reproduce PCL's exactly.
         .flag("-ffp-contract=off")
+        .define("PCL_NO_PRECOMPILE", None)
+        // PCL's own OpenMP loops (its OMP estimators, RANSAC's region) as Debian built them;
+        // the reference pipeline's `#pragma omp parallel for` over clusters (thesis 4.4).
+        .flag("-fopenmp")
         .flag_if_supported("-Wno-deprecated-declarations")
         // GCC 12 false positive inside Eigen (inlined aligned_free), not in our code.
         .flag_if_supported("-Wno-use-after-free");

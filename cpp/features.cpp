@@ -2,12 +2,78 @@
 #include <pcl/features/fpfh_omp.h>
 #include <pcl/features/normal_3d_omp.h>
 
+#include <dlfcn.h>
+
 #include <cmath>
+#include <string>
 
 #include "binpick-pcl/src/ffi.rs.h"
 #include "internal.h"
 
+// The bridge compiles PCL's class templates from PCL's own headers (PCL_NO_PRECOMPILE, build.rs)
+// instead of linking Debian's libpcl_features, whose 117 000 symbol relocations cost every
+// process ~60 ms at start whether or not a feature is computed. The one function of that library
+// the templates call that is not a template, pcl::computePairFeatures (features/src/pfh.cpp,
+// used by FPFH), is PCL's own, looked up in libpcl_features when FPFH first runs.
+namespace {
+
+using PairFeaturesFn = bool (*)(const Eigen::Vector4f&, const Eigen::Vector4f&,
+                                const Eigen::Vector4f&, const Eigen::Vector4f&, float&, float&,
+                                float&, float&);
+
+constexpr const char* kFeaturesLibrary = "libpcl_features.so.1.13";
+constexpr const char* kPairFeaturesSymbol =
+    "_ZN3pcl19computePairFeaturesERKN5Eigen6MatrixIfLi4ELi1ELi0ELi4ELi1EEES4_S4_S4_RfS5_S5_S5_";
+
+struct PairFeatures {
+  PairFeaturesFn fn = nullptr;
+  std::string error;
+};
+
+// Looked up once (thread-safe static); the library stays loaded for the process.
+const PairFeatures& pair_features() {
+  static const PairFeatures found = [] {
+    PairFeatures out;
+    void* library = dlopen(kFeaturesLibrary, RTLD_NOW | RTLD_LOCAL);
+    if (library == nullptr) {
+      const char* why = dlerror();
+      out.error = std::string("cannot load ") + kFeaturesLibrary + " (PCL's features library: " +
+                  (why ? why : "unknown error") + "); install libpcl-dev or run ./scripts/setup";
+      return out;
+    }
+    out.fn = reinterpret_cast<PairFeaturesFn>(dlsym(library, kPairFeaturesSymbol));
+    if (out.fn == nullptr) {
+      out.error = std::string(kFeaturesLibrary) + " has no pcl::computePairFeatures";
+    }
+    return out;
+  }();
+  return found;
+}
+
+}  // namespace
+
+namespace pcl {
+
+// Forwards to PCL's own definition. Never reached before `require_pair_features` has found it
+// (the FPFH entry points call that first, outside any OpenMP region, so a missing library is an
+// error across the bridge, not a throw inside FPFHEstimationOMP's parallel loop).
+bool computePairFeatures(const Eigen::Vector4f& p1, const Eigen::Vector4f& n1,
+                         const Eigen::Vector4f& p2, const Eigen::Vector4f& n2, float& f1,
+                         float& f2, float& f3, float& f4) {
+  const PairFeaturesFn fn = pair_features().fn;
+  if (fn == nullptr) std::abort();  // unreachable: see require_pair_features
+  return fn(p1, n1, p2, n2, f1, f2, f3, f4);
+}
+
+}  // namespace pcl
+
 namespace binpick {
+
+void require_pair_features() {
+  const auto& found = pair_features();
+  if (found.fn == nullptr) throw std::runtime_error(found.error);
+}
+
 namespace {
 
 using Normals = pcl::PointCloud<pcl::Normal>;
@@ -103,6 +169,7 @@ Features cloud_fpfh(const Cloud& surface, rust::Slice<const std::uint32_t> keypo
   const auto& s = surface.impl();
   auto indices = std::make_shared<pcl::Indices>(to_indices(keypoints, s.points->size(), "keypoints"));
   if (indices->empty()) fail("cloud_fpfh: no keypoints");
+  require_pair_features();
 
   const auto normals =
       normals_for(s.points, radius_search_method(s, normal_radius), normal_radius, vp, threads);

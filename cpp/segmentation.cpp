@@ -1,10 +1,7 @@
 // Euclidean clustering and supporting-plane fit (pcl_segmentation, pcl_sample_consensus).
-#include <pcl/ModelCoefficients.h>
 #include <pcl/segmentation/extract_clusters.h>
 #include <pcl/sample_consensus/ransac.h>
 #include <pcl/sample_consensus/sac_model_plane.h>
-#include <pcl/segmentation/sac_segmentation.h>
-
 
 #include <algorithm>
 #include <atomic>
@@ -227,12 +224,12 @@ PointCloudXYZ::Ptr plane_fit_input(rust::Slice<const float> xyz, float distance_
   return cloud;
 }
 
-PlaneFit plane_fit(const pcl::PointIndices& inliers, const pcl::ModelCoefficients& coefficients) {
+PlaneFit plane_fit(const pcl::Indices& inliers, const std::vector<float>& coefficients) {
   PlaneFit out;
-  out.found = !inliers.indices.empty() && coefficients.values.size() == 4;
+  out.found = !inliers.empty() && coefficients.size() == 4;
   if (out.found) {
-    for (int i = 0; i < 4; ++i) out.coefficients[i] = coefficients.values[i];
-    for (auto i : inliers.indices) out.inliers.push_back(static_cast<std::uint32_t>(i));
+    for (int i = 0; i < 4; ++i) out.coefficients[i] = coefficients[i];
+    for (auto i : inliers) out.inliers.push_back(static_cast<std::uint32_t>(i));
   }
   return out;
 }
@@ -246,46 +243,61 @@ PlaneFit plane_fit(const pcl::PointIndices& inliers, const pcl::ModelCoefficient
 // large clouds and counted without PCL's per-point stall (`ShardedPlaneModel`): same draws,
 // same counts, same plane as `segment_plane_pcl` (bridge test
 // `plane_fit_is_the_same_on_any_number_of_threads`). `found` is false when PCL finds no plane.
+bool fit_plane_as_sac_segmentation(const pcl::SampleConsensusModelPlane<pcl::PointXYZ>::Ptr& model,
+                                   float distance_threshold, std::uint32_t max_iterations,
+                                   pcl::Indices& inliers, std::vector<float>& coefficients,
+                                   const std::function<void()>& after_search) {
+  inliers.clear();
+  coefficients.clear();
+  pcl::RandomSampleConsensus<pcl::PointXYZ> sac(model, distance_threshold);
+  sac.setMaxIterations(static_cast<int>(max_iterations));
+  const bool found = sac.computeModel(0);
+  if (after_search) after_search();
+  if (!found) return false;
+  sac.getInliers(inliers);
+  Eigen::VectorXf coeff(model->getModelSize()), refined(model->getModelSize());
+  sac.getModelCoefficients(coeff);
+  model->optimizeModelCoefficients(inliers, coeff, refined);
+  coefficients.assign(refined.data(), refined.data() + refined.size());
+  model->selectWithinDistance(refined, distance_threshold, inliers);
+  return true;
+}
+
+// The plane fit of pcl::SACSegmentation (RANSAC plane, optimised coefficients; deterministic:
+// PCL seeds its generator with 12345), with the inlier counts split over `threads` (0 = all
+// cores) on large clouds and counted without PCL's per-point stall (`ShardedPlaneModel`): same
+// draws, same counts, same plane as `segment_plane_pcl` (bridge test
+// `plane_fit_is_the_same_on_any_number_of_threads`). `found` is false when PCL finds no plane.
 PlaneFit segment_plane(rust::Slice<const float> xyz, float distance_threshold,
                        std::uint32_t max_iterations, std::uint32_t threads) {
   const auto cloud = plane_fit_input(xyz, distance_threshold, max_iterations);
   const int shards = static_cast<int>(std::clamp<std::size_t>(
       cloud->size() / kMinPointsPerShard, 1,
       threads == 0 ? std::max(1u, std::thread::hardware_concurrency()) : threads));
-  pcl::PointIndices inliers;
-  pcl::ModelCoefficients coefficients;
   pcl::Indices all(cloud->size());
   std::iota(all.begin(), all.end(), 0);
   auto model = std::make_shared<ShardedPlaneModel>(cloud, all, shards);
-  pcl::RandomSampleConsensus<pcl::PointXYZ> sac(model, distance_threshold);
-  sac.setMaxIterations(static_cast<int>(max_iterations));
-  const bool found = sac.computeModel(0);
-  if (model->interrupted()) throw_interrupted("support plane fit");
-  if (found) {
-    sac.getInliers(inliers.indices);
-    Eigen::VectorXf coeff(model->getModelSize()), refined(model->getModelSize());
-    sac.getModelCoefficients(coeff);
-    model->optimizeModelCoefficients(inliers.indices, coeff, refined);
-    coefficients.values.assign(refined.data(), refined.data() + refined.size());
-    model->selectWithinDistance(refined, distance_threshold, inliers.indices);
-  }
+  pcl::Indices inliers;
+  std::vector<float> coefficients;
+  fit_plane_as_sac_segmentation(model, distance_threshold, max_iterations, inliers, coefficients,
+                                [&] {
+                                  if (model->interrupted()) throw_interrupted("support plane fit");
+                                });
   return plane_fit(inliers, coefficients);
 }
 
-// The same fit by pcl::SACSegmentation itself, one thread: the bridge tests' reference.
+// The same fit with PCL's own SampleConsensusModelPlane on one thread: the bridge tests'
+// reference.
 PlaneFit segment_plane_pcl(rust::Slice<const float> xyz, float distance_threshold,
                            std::uint32_t max_iterations) {
   const auto cloud = plane_fit_input(xyz, distance_threshold, max_iterations);
-  pcl::PointIndices inliers;
-  pcl::ModelCoefficients coefficients;
-  pcl::SACSegmentation<pcl::PointXYZ> seg;
-  seg.setOptimizeCoefficients(true);
-  seg.setModelType(pcl::SACMODEL_PLANE);
-  seg.setMethodType(pcl::SAC_RANSAC);
-  seg.setDistanceThreshold(distance_threshold);
-  seg.setMaxIterations(static_cast<int>(max_iterations));
-  seg.setInputCloud(cloud);
-  seg.segment(inliers, coefficients);
+  pcl::Indices all(cloud->size());
+  std::iota(all.begin(), all.end(), 0);
+  auto model =
+      std::make_shared<pcl::SampleConsensusModelPlane<pcl::PointXYZ>>(cloud, all, /*random=*/false);
+  pcl::Indices inliers;
+  std::vector<float> coefficients;
+  fit_plane_as_sac_segmentation(model, distance_threshold, max_iterations, inliers, coefficients);
   return plane_fit(inliers, coefficients);
 }
 

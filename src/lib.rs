@@ -12,7 +12,7 @@
 //! | [`estimate_normals_at`]           | `pcl::NormalEstimationOMP` with `setIndices`               |
 //! | [`IndexedCloud::fpfh`]            | `pcl::NormalEstimationOMP` + `pcl::FPFHEstimationOMP` (3.3.2) |
 //! | [`IndexedCloud::euclidean_clusters`] | `pcl::EuclideanClusterExtraction` (3.4.1.3)            |
-//! | [`segment_plane`]                 | `pcl::SACSegmentation` (plane, RANSAC)                     |
+//! | [`segment_plane`]                 | `pcl::SACSegmentation`'s plane fit: `pcl::RandomSampleConsensus` over `pcl::SampleConsensusModelPlane` |
 //! | [`match_features`]                | `pcl::registration::CorrespondenceEstimation` (3.4.1)      |
 //! | [`reject_sample_consensus`]       | `pcl::registration::CorrespondenceRejectorSampleConsensus` (3.4.2.5) |
 //! | [`estimate_svd`]                  | `pcl::registration::TransformationEstimationSVD` (3.5.1)   |
@@ -220,7 +220,8 @@ pub struct Plane {
     pub inliers: Vec<u32>,
 }
 
-/// RANSAC plane fit (`pcl::SACSegmentation`, optimised coefficients, fixed seed). `Ok(None)`
+/// RANSAC plane fit as `pcl::SACSegmentation` makes it (PCL's `RandomSampleConsensus` over
+/// `SampleConsensusModelPlane`, optimised coefficients, fixed seed). `Ok(None)`
 /// when PCL finds no plane. RANSAC's inlier counts are split over `threads` (0 = all cores)
 /// on large clouds and counted by the bridge over contiguous copies of the points with PCL's
 /// float arithmetic ([`plane_inlier_counts`]); the plane is [`segment_plane_pcl`]'s.
@@ -232,12 +233,12 @@ pub fn segment_plane(
 ) -> Result<Option<Plane>> {
     init();
     let fit = bridge::segment_plane(flat(points), distance_threshold, max_iterations, threads)
-        .map_err(pcl_err("SACSegmentation"))?;
+        .map_err(pcl_err("RANSAC plane fit"))?;
     Ok(plane(fit))
 }
 
-/// The same fit by `pcl::SACSegmentation::segment` itself on one thread: the reference the
-/// bridge tests hold [`segment_plane`] to.
+/// The same fit over PCL's own `SampleConsensusModelPlane` on one thread: the reference the
+/// bridge tests hold [`segment_plane`] to (and hold to `SACSegmentation::segment`'s answer).
 #[doc(hidden)]
 pub fn segment_plane_pcl(
     points: &[Point],
@@ -246,7 +247,7 @@ pub fn segment_plane_pcl(
 ) -> Result<Option<Plane>> {
     init();
     let fit = bridge::segment_plane_pcl(flat(points), distance_threshold, max_iterations)
-        .map_err(pcl_err("SACSegmentation"))?;
+        .map_err(pcl_err("RANSAC plane fit"))?;
     Ok(plane(fit))
 }
 

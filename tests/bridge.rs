@@ -604,10 +604,13 @@ fn plane_segmentation_removes_the_floor_and_keeps_objects() {
 }
 
 /// Splitting and counting RANSAC's inliers in the bridge must not change the fit: PCL's own
-/// SACSegmentation and the bridge's fit on 1, 2, 3 threads and all cores return the same
-/// plane bit for bit and the same inliers in the same order, on a cloud large enough to be
-/// split and on one counted in a single shard. Two noisy planes and uniform clutter of
-/// similar sizes make RANSAC use all its iterations and choose between close counts.
+/// plane model and the bridge's fit on 1, 2, 3 threads and all cores return the same plane
+/// bit for bit and the same inliers in the same order, on a cloud large enough to be split
+/// and on one counted in a single shard. Two noisy planes and uniform clutter of similar
+/// sizes make RANSAC use all its iterations and choose between close counts. Both are also
+/// `pcl::SACSegmentation::segment`'s answer as Debian's precompiled libpcl_segmentation gives
+/// it (`scripts/golden/sac_segmentation.cpp` on these clouds: coefficient bits, inlier count
+/// and an FNV-1a hash of the inlier indices), which the bridge no longer compiles.
 #[test]
 fn plane_fit_is_the_same_on_any_number_of_threads() {
     let mut rng = Rng(0xfeed_beef);
@@ -631,6 +634,38 @@ fn plane_fit_is_the_same_on_any_number_of_threads() {
             .unwrap()
             .expect("a plane");
         assert!(pcl.inliers.len() > least, "{}", pcl.inliers.len());
+        // BINPICK_GOLDEN_DIR=<dir> writes the clouds for scripts/golden/sac_segmentation.cpp.
+        if let Some(dir) = std::env::var_os("BINPICK_GOLDEN_DIR") {
+            let bytes: Vec<u8> = cloud
+                .iter()
+                .flatten()
+                .flat_map(|c| c.to_le_bytes())
+                .collect();
+            let path = std::path::Path::new(&dir).join(format!("plane-{}.bin", cloud.len()));
+            std::fs::write(&path, bytes).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        }
+        let sac_segmentation = match cloud.len() {
+            90_000 => (
+                [3131341071, 3145730587, 1065353075, 1064612652],
+                20_123,
+                0x31d2_7431_a375_0983,
+            ),
+            6_000 => (
+                [3138624241, 3114585266, 1065353173, 1065637329],
+                1_291,
+                0x43d0_88d3_8325_83da,
+            ),
+            n => panic!("no SACSegmentation answer recorded for {n} points"),
+        };
+        let fnv = pcl.inliers.iter().fold(0xcbf2_9ce4_8422_2325_u64, |h, &i| {
+            (h ^ u64::from(i)).wrapping_mul(0x100_0000_01b3)
+        });
+        assert_eq!(
+            (pcl.coefficients.map(f32::to_bits), pcl.inliers.len(), fnv),
+            sac_segmentation,
+            "SACSegmentation's plane on {} points",
+            cloud.len()
+        );
         for threads in [1, 2, 3, 0] {
             let split = segment_plane(cloud, 1.0, 300, threads)
                 .unwrap()

@@ -3,8 +3,10 @@
 
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
+#include <pcl/sample_consensus/sac_model_plane.h>
 #include <pcl/search/kdtree.h>
 
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <sstream>
@@ -69,6 +71,23 @@ pcl::search::KdTree<pcl::PointXYZ>::Ptr make_tree(const PointCloudXYZ::Ptr& clou
 void check_grid(const PointCloudXYZ& cloud, float leaf, const char* what);
 
 void check_positive(double value, const char* name);
+
+// pcl::SACSegmentation<PointXYZ>::segment (PCL 1.13) for SACMODEL_PLANE, SAC_RANSAC and
+// optimised coefficients, on `model` (over all the cloud's points, random = false): PCL's
+// RandomSampleConsensus with SACSegmentation's defaults (probability 0.99, PCL's thread
+// count), the refined coefficients and the inliers within `distance_threshold` of them
+// (segmentation.cpp). False, with both outputs empty, when RANSAC finds no plane.
+// `after_search` runs once RANSAC's search ends (it may throw). Written out because
+// instantiating SACSegmentation compiles every model and method PCL has (its initSACModel and
+// initSAC switches: minutes of build time) for this one path.
+bool fit_plane_as_sac_segmentation(const pcl::SampleConsensusModelPlane<pcl::PointXYZ>::Ptr& model,
+                                   float distance_threshold, std::uint32_t max_iterations,
+                                   pcl::Indices& inliers, std::vector<float>& coefficients,
+                                   const std::function<void()>& after_search = {});
+
+// Finds PCL's pcl::computePairFeatures in libpcl_features (features.cpp), or throws saying why.
+// Called before any FPFH computation, outside OpenMP regions.
+void require_pair_features();
 
 // Throws binpick's interruption marker when the Rust caller asked the running call to stop
 // (time budget or cancellation: `binpick_pcl::set_interrupt` on the calling thread). Long

@@ -22,7 +22,6 @@
 // an exception, which cxx turns into a Rust error; nothing escapes the OpenMP region.
 #include <omp.h>
 
-#include <pcl/ModelCoefficients.h>
 #include <pcl/correspondence.h>
 #include <pcl/features/fpfh_omp.h>
 #include <pcl/features/normal_3d_omp.h>
@@ -34,7 +33,7 @@
 #include <pcl/registration/icp.h>
 #include <pcl/registration/transformation_estimation_svd.h>
 #include <pcl/segmentation/extract_clusters.h>
-#include <pcl/segmentation/sac_segmentation.h>
+#include <pcl/sample_consensus/sac_model_plane.h>
 
 #include <algorithm>
 #include <array>
@@ -142,6 +141,7 @@ RadiusDescriptors fpfh(const PointCloudXYZ::Ptr& surface, const pcl::IndicesPtr&
   check_positive(feature_radius, "FPFH radius");
   check_positive(normal_radius, "normal radius");
   if (keypoints->empty()) fail("cloud_fpfh: no keypoints");
+  require_pair_features();
 
   pcl::NormalEstimationOMP<pcl::PointXYZ, pcl::Normal> ne;
   ne.setInputCloud(surface);
@@ -386,7 +386,8 @@ std::vector<bool> large_patches(const PointCloudXYZ& points, const std::array<fl
   return big;
 }
 
-// RANSAC plane fits (pcl::SACSegmentation, as the bridge's segment_plane): a plane is support
+// RANSAC plane fits (pcl::SACSegmentation's plane fit, as the bridge's segment_plane_pcl runs
+// it: fit_plane_as_sac_segmentation over PCL's SampleConsensusModelPlane): a plane is support
 // only where its inliers form a connected patch of at least `min_patch` points; a plane's
 // inliers are excluded from later fits either way. Remaining points keep their order.
 PointCloudXYZ::Ptr remove_support(const PointCloudXYZ::Ptr& points, const ReferenceParams& p,
@@ -403,20 +404,18 @@ PointCloudXYZ::Ptr remove_support(const PointCloudXYZ::Ptr& points, const Refere
   for (std::uint32_t round = 0; round < p.support_max_planes; ++round) {
     if (candidates.size() < min_patch) break;
     const auto cand = subset(*points, candidates);
-    pcl::SACSegmentation<pcl::PointXYZ> seg;
-    seg.setOptimizeCoefficients(true);
-    seg.setModelType(pcl::SACMODEL_PLANE);
-    seg.setMethodType(pcl::SAC_RANSAC);
-    seg.setDistanceThreshold(distance);
-    seg.setMaxIterations(static_cast<int>(p.support_ransac_iterations));
-    seg.setInputCloud(cand);
+    pcl::Indices all(cand->size());
+    std::iota(all.begin(), all.end(), 0);
+    auto model =
+        std::make_shared<pcl::SampleConsensusModelPlane<pcl::PointXYZ>>(cand, all, /*random=*/false);
     pcl::PointIndices inliers;
-    pcl::ModelCoefficients coefficients;
-    seg.segment(inliers, coefficients);
-    if (inliers.indices.empty() || coefficients.values.size() != 4) break;
+    std::vector<float> coefficients;
+    fit_plane_as_sac_segmentation(model, distance, p.support_ransac_iterations, inliers.indices,
+                                  coefficients);
+    if (inliers.indices.empty() || coefficients.size() != 4) break;
     if (inliers.indices.size() < min_patch) break;
     std::array<float, 4> plane{};
-    for (std::size_t i = 0; i < 4; ++i) plane[i] = coefficients.values[i];
+    for (std::size_t i = 0; i < 4; ++i) plane[i] = coefficients[i];
     const auto on_plane = subset(*cand, inliers.indices);
     const auto big = large_patches(*on_plane, plane, tolerance, min_patch);
     std::uint32_t taken = 0;

@@ -63,9 +63,8 @@ fn dist2(a: [f64; 3], b: [f64; 3]) -> f64 {
 }
 
 /// The point of `points` farthest from `from`.
-fn farthest(points: &[Point], from: [f64; 3]) -> [f64; 3] {
+fn farthest<'a>(points: impl Iterator<Item = &'a Point>, from: [f64; 3]) -> [f64; 3] {
     points
-        .iter()
         .map(to_f64)
         .fold((from, 0.0), |(best, bd), p| {
             let d = dist2(p, from);
@@ -76,31 +75,30 @@ fn farthest(points: &[Point], from: [f64; 3]) -> [f64; 3] {
 
 impl PointCloud {
     /// Whether the cloud is degenerate (see [`Degeneracy`]); `None` for a usable or empty
-    /// cloud. Non-finite points are ignored. Two passes over the points.
+    /// cloud. Non-finite points are ignored. Three passes over the points and a fourth that
+    /// stops at the first point off the line (on a scan, within the first few).
     pub fn degeneracy(&self) -> Option<Degeneracy> {
-        let finite: Vec<Point> = self
-            .points
-            .iter()
-            .filter(|p| p.iter().all(|c| c.is_finite()))
-            .copied()
-            .collect();
-        let first = *finite.first()?;
-        if finite.len() == 1 {
+        let finite = || {
+            self.points
+                .iter()
+                .filter(|p| p.iter().all(|c| c.is_finite()))
+        };
+        let first = *finite().next()?;
+        if finite().nth(1).is_none() {
             return Some(Degeneracy::SinglePoint { at: first });
         }
         // f32 rounding of the coordinates themselves.
-        let magnitude = finite
-            .iter()
+        let magnitude = finite()
             .flat_map(|p| p.iter())
             .fold(0.0f64, |m, &c| m.max(f64::from(c).abs()));
         let rounding = 4.0 * f64::from(f32::EPSILON) * magnitude.max(f64::MIN_POSITIVE);
         // Ends of the cloud's longest extent (two farthest-point sweeps).
-        let a = farthest(&finite, to_f64(&first));
-        let b = farthest(&finite, a);
+        let a = farthest(finite(), to_f64(&first));
+        let b = farthest(finite(), a);
         let length = dist2(a, b).sqrt();
         if length <= rounding {
             return Some(Degeneracy::AllIdentical {
-                points: finite.len(),
+                points: finite().count(),
                 at: first,
             });
         }
@@ -109,8 +107,10 @@ impl PointCloud {
             (b[1] - a[1]) / length,
             (b[2] - a[2]) / length,
         ];
+        let limit = COLLINEAR_TOLERANCE * length + rounding;
         let mut max_offset = 0.0f64;
-        for p in &finite {
+        let mut points = 0;
+        for p in finite() {
             let d = [
                 f64::from(p[0]) - a[0],
                 f64::from(p[1]) - a[1],
@@ -119,9 +119,13 @@ impl PointCloud {
             let along = d[0] * dir[0] + d[1] * dir[1] + d[2] * dir[2];
             let off2 = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) - along * along;
             max_offset = max_offset.max(off2.max(0.0).sqrt());
+            if max_offset > limit {
+                return None;
+            }
+            points += 1;
         }
-        (max_offset <= COLLINEAR_TOLERANCE * length + rounding).then_some(Degeneracy::Collinear {
-            points: finite.len(),
+        Some(Degeneracy::Collinear {
+            points,
             length,
             max_offset,
         })
