@@ -127,6 +127,10 @@ class ShardedPlaneModel : public pcl::SampleConsensusModelPlane<pcl::PointXYZ> {
       const std::size_t begin = n * s / threads;
       const std::size_t end = n * (s + 1) / threads;
       Shard& shard = shards_[s];
+      shard.begin = begin;
+      shard.x.reserve(end - begin);
+      shard.y.reserve(end - begin);
+      shard.z.reserve(end - begin);
       for (std::size_t i = begin; i < end; ++i) {
         const auto& p = (*cloud)[indices[i]];
         shard.x.push_back(p.x);
@@ -153,12 +157,39 @@ class ShardedPlaneModel : public pcl::SampleConsensusModelPlane<pcl::PointXYZ> {
     return std::accumulate(counts_.begin(), counts_.end(), std::size_t{0});
   }
 
+  // PCL's selectWithinDistance (the inliers RANSAC keeps, and the final ones after the
+  // refinement) with count_within's arithmetic, each shard selecting its points in parallel and
+  // the selections joined in shard order: the same indices in the same order and the same
+  // error_sqr_dists_ as PCL's loop, without its per-point stall (bridge test
+  // `split_plane_count_is_pcls_count_to_the_last_point`). An invalid model is PCL's own case.
+  void selectWithinDistance(const Eigen::VectorXf& coefficients, const double threshold,
+                            pcl::Indices& inliers) override {
+    if (!isModelValid(coefficients)) {
+      Plane::selectWithinDistance(coefficients, threshold, inliers);
+      return;
+    }
+    const float a = coefficients[0], b = coefficients[1], c = coefficients[2],
+                d = coefficients[3];
+    std::vector<std::vector<std::uint32_t>> at(shards_.size());
+    std::vector<std::vector<float>> distance(shards_.size());
+    runner_.run([&](int s) { shards_[s].select_within(a, b, c, d, threshold, at[s], distance[s]); });
+    inliers.clear();
+    error_sqr_dists_.clear();
+    for (std::size_t s = 0; s < shards_.size(); ++s) {
+      for (std::size_t k = 0; k < at[s].size(); ++k) {
+        inliers.push_back((*indices_)[shards_[s].begin + at[s][k]]);
+        error_sqr_dists_.push_back(static_cast<double>(distance[s][k]));
+      }
+    }
+  }
+
  public:
   // Whether the caller asked to stop during the fit (its answer is then meaningless).
   bool interrupted() const { return interrupted_.load(std::memory_order_relaxed); }
 
  private:
   struct Shard {
+    std::size_t begin = 0;  // position of the shard's first point in the model's indices
     std::vector<float> x, y, z;
 
     // Points with |a x + b y + c z + d| < threshold, each distance rounded as PCL's
@@ -173,6 +204,19 @@ class ShardedPlaneModel : public pcl::SampleConsensusModelPlane<pcl::PointXYZ> {
       }
       return n;
     }
+
+    // The points count_within counts: their positions in the shard and |distance|, in order.
+    void select_within(float a, float b, float c, float d, double threshold,
+                       std::vector<std::uint32_t>& at, std::vector<float>& distance) const {
+      const std::size_t size = x.size();
+      for (std::size_t i = 0; i < size; ++i) {
+        const float e = std::fabs((a * x[i] + c * z[i]) + (b * y[i] + d));
+        if (static_cast<double>(e) < threshold) {
+          at.push_back(static_cast<std::uint32_t>(i));
+          distance.push_back(e);
+        }
+      }
+    }
   };
   mutable std::atomic<bool> interrupted_{false};
   mutable ShardRunner runner_;
@@ -185,25 +229,42 @@ constexpr std::size_t kMinPointsPerShard = 8000;
 
 }  // namespace
 
-// Inlier counts of each plane (a, b, c, d) by PCL's SampleConsensusModelPlane and by the
-// split model over two shards, interleaved: for the bridge test that they agree exactly.
+// For each plane (a, b, c, d), by PCL's SampleConsensusModelPlane and by the split model over
+// two shards: the inlier counts, then the sizes of the selections (selectWithinDistance), the
+// split one only when its indices and distances are PCL's exactly (else u64 max). Four numbers
+// per plane, for the bridge test that the two agree.
 rust::Vec<std::uint64_t> plane_inlier_counts(rust::Slice<const float> xyz,
                                              rust::Slice<const float> planes,
                                              double distance_threshold) {
   if (planes.size() % 4 != 0) {
     fail("plane_inlier_counts: ", planes.size(), " plane values, not 4 per plane");
   }
+  // PCL's plane model as it is, with its selection's distances readable.
+  struct PclPlane : pcl::SampleConsensusModelPlane<pcl::PointXYZ> {
+    using SampleConsensusModelPlane::SampleConsensusModelPlane;
+    const std::vector<double>& distances() const { return error_sqr_dists_; }
+  };
+  struct SplitPlane : ShardedPlaneModel {
+    using ShardedPlaneModel::ShardedPlaneModel;
+    const std::vector<double>& distances() const { return error_sqr_dists_; }
+  };
   const auto cloud = to_cloud(xyz, "plane_inlier_counts");
   pcl::Indices all(cloud->size());
   std::iota(all.begin(), all.end(), 0);
-  const pcl::SampleConsensusModelPlane<pcl::PointXYZ> pcl_model(cloud, all, /*random=*/false);
-  const ShardedPlaneModel split(cloud, all, 2);
+  PclPlane pcl_model(cloud, all, /*random=*/false);
+  SplitPlane split(cloud, all, 2);
   rust::Vec<std::uint64_t> out;
   for (std::size_t k = 0; k + 4 <= planes.size(); k += 4) {
     Eigen::VectorXf c(4);
     c << planes[k], planes[k + 1], planes[k + 2], planes[k + 3];
     out.push_back(pcl_model.countWithinDistance(c, distance_threshold));
     out.push_back(split.countWithinDistance(c, distance_threshold));
+    pcl::Indices by_pcl, by_split;
+    pcl_model.selectWithinDistance(c, distance_threshold, by_pcl);
+    split.selectWithinDistance(c, distance_threshold, by_split);
+    out.push_back(by_pcl.size());
+    const bool same = by_split == by_pcl && split.distances() == pcl_model.distances();
+    out.push_back(same ? by_split.size() : std::numeric_limits<std::uint64_t>::max());
   }
   return out;
 }

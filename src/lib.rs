@@ -258,21 +258,25 @@ fn plane(fit: bridge::PlaneFit) -> Option<Plane> {
     })
 }
 
-/// For each plane `[a, b, c, d]`, the points within `distance_threshold` of it as counted by
-/// PCL's `SampleConsensusModelPlane::countWithinDistance` and by the split count
-/// [`segment_plane`] uses on large clouds: `(pcl, split)` per plane. For tests that the two
-/// agree exactly.
+/// For each plane `[a, b, c, d]`, the points within `distance_threshold` of it as PCL's
+/// `SampleConsensusModelPlane` and the split model [`segment_plane`] uses on large clouds find
+/// them: `[pcl count, split count, pcl selection, split selection]` per plane, the counts from
+/// `countWithinDistance`, the selections' sizes from `selectWithinDistance` (the split one
+/// `u64::MAX` unless its indices and distances are PCL's exactly). For tests that the two agree.
 #[doc(hidden)]
 pub fn plane_inlier_counts(
     points: &[Point],
     planes: &[[f32; 4]],
     distance_threshold: f64,
-) -> Result<Vec<(u64, u64)>> {
+) -> Result<Vec<[u64; 4]>> {
     init();
     let counts =
         bridge::plane_inlier_counts(flat(points), planes.as_flattened(), distance_threshold)
             .map_err(pcl_err("SampleConsensusModelPlane"))?;
-    Ok(counts.chunks_exact(2).map(|c| (c[0], c[1])).collect())
+    Ok(counts
+        .chunks_exact(4)
+        .map(|c| [c[0], c[1], c[2], c[3]])
+        .collect())
 }
 
 /// For every source descriptor, its nearest target descriptor

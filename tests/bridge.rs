@@ -680,8 +680,9 @@ fn plane_fit_is_the_same_on_any_number_of_threads() {
     }
 }
 
-/// The split count that RANSAC's inner loop uses on large clouds is PCL's count exactly, down
-/// to the rounding of each distance: points placed within a few ulps of the threshold on
+/// The split count that RANSAC's inner loop uses on large clouds is PCL's count exactly, and
+/// the split selection PCL's selection (same indices, order and distances), down to the
+/// rounding of each distance: points placed within a few ulps of the threshold on
 /// both sides of 40 planes (summing the plane's terms in another order moves some of them
 /// across it: 10 of the first plane's 500).
 #[test]
@@ -708,11 +709,13 @@ fn split_plane_count_is_pcls_count_to_the_last_point() {
     }
     let counts = binpick_pcl::plane_inlier_counts(&pts, &planes, threshold).unwrap();
     assert_eq!(counts.len(), planes.len());
-    for (k, (pcl, split)) in counts.iter().enumerate() {
-        assert_eq!(pcl, split, "plane {k}");
+    for (k, [pcl, split, pcl_selected, split_selected]) in counts.iter().enumerate() {
+        assert_eq!(pcl, split, "plane {k}: counts");
+        assert_eq!(pcl_selected, pcl, "plane {k}: PCL selects what it counts");
+        assert_eq!(split_selected, pcl_selected, "plane {k}: selections");
     }
     // The boundary is really tested: about half of each plane's 500 points fall inside.
-    let inside: u64 = counts.iter().map(|c| c.0).sum();
+    let inside: u64 = counts.iter().map(|c| c[0]).sum();
     assert!((4_000..16_000).contains(&inside), "{inside}");
 }
 
