@@ -297,13 +297,7 @@ PlaneFit plane_fit(const pcl::Indices& inliers, const std::vector<float>& coeffi
 
 }  // namespace
 
-// pcl::SACSegmentation, RANSAC plane with optimised coefficients (deterministic: PCL seeds
-// its generator with 12345), run as SACSegmentation::segment runs it (PCL's
-// RandomSampleConsensus, coefficient refinement and final selection on a
-// SampleConsensusModelPlane) with the inlier counts split over `threads` (0 = all cores) on
-// large clouds and counted without PCL's per-point stall (`ShardedPlaneModel`): same draws,
-// same counts, same plane as `segment_plane_pcl` (bridge test
-// `plane_fit_is_the_same_on_any_number_of_threads`). `found` is false when PCL finds no plane.
+// See internal.h.
 bool fit_plane_as_sac_segmentation(const pcl::SampleConsensusModelPlane<pcl::PointXYZ>::Ptr& model,
                                    float distance_threshold, std::uint32_t max_iterations,
                                    pcl::Indices& inliers, std::vector<float>& coefficients,
@@ -347,18 +341,25 @@ PlaneFit segment_plane(rust::Slice<const float> xyz, float distance_threshold,
   return plane_fit(inliers, coefficients);
 }
 
+bool fit_plane_pcl(const PointCloudXYZ::Ptr& cloud, float distance_threshold,
+                   std::uint32_t max_iterations, pcl::Indices& inliers,
+                   std::vector<float>& coefficients) {
+  pcl::Indices all(cloud->size());
+  std::iota(all.begin(), all.end(), 0);
+  auto model =
+      std::make_shared<pcl::SampleConsensusModelPlane<pcl::PointXYZ>>(cloud, all, /*random=*/false);
+  return fit_plane_as_sac_segmentation(model, distance_threshold, max_iterations, inliers,
+                                       coefficients);
+}
+
 // The same fit with PCL's own SampleConsensusModelPlane on one thread: the bridge tests'
 // reference.
 PlaneFit segment_plane_pcl(rust::Slice<const float> xyz, float distance_threshold,
                            std::uint32_t max_iterations) {
   const auto cloud = plane_fit_input(xyz, distance_threshold, max_iterations);
-  pcl::Indices all(cloud->size());
-  std::iota(all.begin(), all.end(), 0);
-  auto model =
-      std::make_shared<pcl::SampleConsensusModelPlane<pcl::PointXYZ>>(cloud, all, /*random=*/false);
   pcl::Indices inliers;
   std::vector<float> coefficients;
-  fit_plane_as_sac_segmentation(model, distance_threshold, max_iterations, inliers, coefficients);
+  fit_plane_pcl(cloud, distance_threshold, max_iterations, inliers, coefficients);
   return plane_fit(inliers, coefficients);
 }
 

@@ -85,6 +85,11 @@ bool fit_plane_as_sac_segmentation(const pcl::SampleConsensusModelPlane<pcl::Poi
                                    pcl::Indices& inliers, std::vector<float>& coefficients,
                                    const std::function<void()>& after_search = {});
 
+// fit_plane_as_sac_segmentation over PCL's own SampleConsensusModelPlane on all of `cloud`.
+bool fit_plane_pcl(const PointCloudXYZ::Ptr& cloud, float distance_threshold,
+                   std::uint32_t max_iterations, pcl::Indices& inliers,
+                   std::vector<float>& coefficients);
+
 // Finds PCL's pcl::computePairFeatures in libpcl_features (features.cpp), or throws saying why.
 // Called before any FPFH computation, outside OpenMP regions.
 void require_pair_features();

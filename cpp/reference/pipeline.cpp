@@ -33,7 +33,6 @@
 #include <pcl/registration/icp.h>
 #include <pcl/registration/transformation_estimation_svd.h>
 #include <pcl/segmentation/extract_clusters.h>
-#include <pcl/sample_consensus/sac_model_plane.h>
 
 #include <algorithm>
 #include <array>
@@ -386,8 +385,8 @@ std::vector<bool> large_patches(const PointCloudXYZ& points, const std::array<fl
   return big;
 }
 
-// RANSAC plane fits (pcl::SACSegmentation's plane fit, as the bridge's segment_plane_pcl runs
-// it: fit_plane_as_sac_segmentation over PCL's SampleConsensusModelPlane): a plane is support
+// RANSAC plane fits (pcl::SACSegmentation's plane fit over PCL's own plane model, as the
+// bridge's segment_plane_pcl: fit_plane_pcl): a plane is support
 // only where its inliers form a connected patch of at least `min_patch` points; a plane's
 // inliers are excluded from later fits either way. Remaining points keep their order.
 PointCloudXYZ::Ptr remove_support(const PointCloudXYZ::Ptr& points, const ReferenceParams& p,
@@ -404,14 +403,9 @@ PointCloudXYZ::Ptr remove_support(const PointCloudXYZ::Ptr& points, const Refere
   for (std::uint32_t round = 0; round < p.support_max_planes; ++round) {
     if (candidates.size() < min_patch) break;
     const auto cand = subset(*points, candidates);
-    pcl::Indices all(cand->size());
-    std::iota(all.begin(), all.end(), 0);
-    auto model =
-        std::make_shared<pcl::SampleConsensusModelPlane<pcl::PointXYZ>>(cand, all, /*random=*/false);
     pcl::PointIndices inliers;
     std::vector<float> coefficients;
-    fit_plane_as_sac_segmentation(model, distance, p.support_ransac_iterations, inliers.indices,
-                                  coefficients);
+    fit_plane_pcl(cand, distance, p.support_ransac_iterations, inliers.indices, coefficients);
     if (inliers.indices.empty() || coefficients.size() != 4) break;
     if (inliers.indices.size() < min_patch) break;
     std::array<float, 4> plane{};
