@@ -122,34 +122,59 @@ pub fn kth_nearest_distinct_on_grid(
     {
         return Err(MatchError::NonFinite { what: "cloud" });
     }
+    use rayon::prelude::*;
     let grid = Grid::new(points);
     let want = (2 * k + 2).min(points.len());
-    let mut best = Vec::with_capacity(want + 1);
+    // Each query on its own (in the calling pool's threads), answers in the queries' order.
     Ok(queries
-        .iter()
-        .map(|q| {
-            grid.nearest_squared(points, q, want, &mut best);
-            best.iter()
-                .copied()
-                .filter(|&d| d > 1e-12)
-                .nth(k.checked_sub(1)?)
-                .map(f32::sqrt)
-        })
+        .par_iter()
+        .with_min_len(64)
+        .map_init(
+            || Vec::with_capacity(want + 1),
+            |best, q| {
+                grid.nearest_squared(points, q, want, best);
+                best.iter()
+                    .copied()
+                    .filter(|&d| d > 1e-12)
+                    .nth(k.checked_sub(1)?)
+                    .map(f32::sqrt)
+            },
+        )
         .collect())
 }
 
-/// Per-axis minimum and maximum of `points` (infinite for none).
+/// Per-axis minimum and maximum of `points` (infinite for none). Large clouds are split over
+/// the threads of the calling pool: minima and maxima do not depend on the split.
 pub fn bounds(points: &[P3]) -> ([f64; 3], [f64; 3]) {
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    for p in points {
-        for a in 0..3 {
-            lo[a] = lo[a].min(f64::from(p[a]));
-            hi[a] = hi[a].max(f64::from(p[a]));
+    use rayon::prelude::*;
+    let of = |chunk: &[P3]| {
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for p in chunk {
+            for a in 0..3 {
+                lo[a] = lo[a].min(f64::from(p[a]));
+                hi[a] = hi[a].max(f64::from(p[a]));
+            }
         }
+        (lo, hi)
+    };
+    if points.len() < PARALLEL_POINTS {
+        return of(points);
     }
-    (lo, hi)
+    points.par_chunks(PARALLEL_POINTS).map(of).reduce(
+        || ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
+        |(l1, h1), (l2, h2)| {
+            (
+                [0, 1, 2].map(|a| l1[a].min(l2[a])),
+                [0, 1, 2].map(|a| h1[a].max(h2[a])),
+            )
+        },
+    )
 }
+
+/// Clouds of at least this many points have their per-point passes (bounds, grid cells)
+/// split over threads; below it the split costs more than it saves.
+const PARALLEL_POINTS: usize = 1 << 15;
 
 /// Points sorted into the cells of a uniform grid over their bounding box (a counting sort:
 /// `order[start[c]..start[c + 1]]` are the points of cell `c`).
@@ -180,10 +205,17 @@ impl Grid {
             start: Vec::new(),
             order: Vec::new(),
         };
-        let cells: Vec<u32> = points
-            .iter()
-            .map(|p| grid.index(grid.cell_of(p)) as u32)
-            .collect();
+        let cell = |p: &P3| grid.index(grid.cell_of(p)) as u32;
+        let cells: Vec<u32> = if points.len() < PARALLEL_POINTS {
+            points.iter().map(cell).collect()
+        } else {
+            use rayon::prelude::*;
+            points
+                .par_iter()
+                .with_min_len(PARALLEL_POINTS)
+                .map(cell)
+                .collect()
+        };
         let n_cells = dims.iter().product::<usize>();
         let mut start = vec![0u32; n_cells + 1];
         for &c in &cells {
