@@ -28,20 +28,21 @@ const PCL_MODULES: &[&str] = &[
 /// Libraries linked (pkg-config names).
 const LINKED: &[&str] = &["pcl_common", "liblz4"];
 
-/// C++ sources, split by PCL module so they compile in parallel and rebuild independently.
+/// C++ sources, split by PCL module so they compile in parallel and rebuild independently;
+/// the longest to compile first.
 const SOURCES: &[&str] = &[
+    "cpp/registration.cpp",
+    "cpp/segmentation.cpp",
+    "cpp/features.cpp",
     "cpp/common.cpp",
     "cpp/filters.cpp",
-    "cpp/features.cpp",
-    "cpp/segmentation.cpp",
-    "cpp/registration.cpp",
 ];
 
 const HEADERS: &[&str] = &["cpp/include/binpick_pcl.h", "cpp/include/internal.h"];
 
 /// The reference pipeline (thesis Algorithms 1 and 2 written directly against PCL, one call per
-/// scene). Compiled as its own library: the CLI and the tests build it (feature `reference`),
-/// a controller need not.
+/// scene). Compiled only with the feature `reference`: the CLI and the tests build it, a
+/// controller need not.
 const REFERENCE_SOURCES: &[&str] = &["cpp/reference/pipeline.cpp"];
 
 fn main() {
@@ -97,24 +98,21 @@ fn main() {
         return;
     }
 
+    // One library, its translation units compiled at once on the jobserver's cores (cc's
+    // `parallel`); the reference pipeline only with the feature `reference` (on for the CLI and
+    // the tests; a controller need not build it).
+    let mut sources: Vec<&str> = SOURCES.to_vec();
+    if std::env::var_os("CARGO_FEATURE_REFERENCE").is_some() {
+        sources.extend(REFERENCE_SOURCES);
+    }
     let mut build = cxx_build::bridge("src/ffi.rs");
-    configure(&mut build, SOURCES, &include_dirs);
+    configure(&mut build, &sources, &include_dirs);
     build.compile("binpick_pcl_bridge");
     // PCL's OpenMP estimators (NormalEstimationOMP, FPFHEstimationOMP) run their loops on it.
     println!("cargo:rustc-link-lib=gomp");
-
-    // The reference engine is optional (feature `reference`, on for the CLI and the tests).
-    if std::env::var_os("CARGO_FEATURE_REFERENCE").is_none() {
-        return;
-    }
-    // No bridge of its own (the functions are declared in src/ffi.rs): this only sets up the
-    // include paths of the generated header.
-    let mut reference = cxx_build::bridges(std::iter::empty::<&str>());
-    configure(&mut reference, REFERENCE_SOURCES, &include_dirs);
-    reference.compile("binpick_pcl_reference");
 }
 
-/// Sources and flags common to both libraries. PCL and Eigen headers are noisy, so they are
+/// Sources and flags of the library. PCL and Eigen headers are noisy, so they are
 /// system includes; our own code is still compiled with -Wall.
 fn configure(build: &mut cc::Build, sources: &[&str], include_dirs: &[std::path::PathBuf]) {
     build

@@ -13,6 +13,9 @@
 #include "binpick-pcl/src/ffi.rs.h"
 #include "internal.h"
 
+// The kd-tree classes every translation unit uses, compiled here once (internal.h).
+BINPICK_SEARCH_TEMPLATES(BINPICK_INSTANTIATE_TEMPLATE)
+
 namespace binpick {
 
 Cloud::Cloud(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}

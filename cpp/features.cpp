@@ -10,6 +10,9 @@
 #include "binpick-pcl/src/ffi.rs.h"
 #include "internal.h"
 
+// The classes this module shares with the reference pipeline, compiled here once (internal.h).
+BINPICK_FEATURES_TEMPLATES(BINPICK_INSTANTIATE_TEMPLATE)
+
 // The bridge compiles PCL's class templates from PCL's own headers (PCL_NO_PRECOMPILE, build.rs)
 // instead of linking Debian's libpcl_features, whose 117 000 symbol relocations cost every
 // process ~60 ms at start whether or not a feature is computed. The one function of that library

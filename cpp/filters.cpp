@@ -12,6 +12,9 @@
 #include "binpick-pcl/src/ffi.rs.h"
 #include "internal.h"
 
+// The classes this module shares with the reference pipeline, compiled here once (internal.h).
+BINPICK_FILTERS_TEMPLATES(BINPICK_INSTANTIATE_TEMPLATE)
+
 namespace binpick {
 
 // pcl::UniformSampling keeps, in every leaf x leaf x leaf cell, the input point closest to the

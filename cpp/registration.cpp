@@ -19,6 +19,9 @@
 #include "binpick-pcl/src/ffi.rs.h"
 #include "internal.h"
 
+// The classes this module shares with the reference pipeline, compiled here once (internal.h).
+BINPICK_REGISTRATION_TEMPLATES(BINPICK_INSTANTIATE_TEMPLATE)
+
 namespace binpick {
 
 // The same FLANN index pcl::KdTreeFLANN builds (single kd-tree, 15 points per leaf, exact

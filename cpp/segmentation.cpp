@@ -14,6 +14,9 @@
 #include "binpick-pcl/src/ffi.rs.h"
 #include "internal.h"
 
+// The classes this module shares with the reference pipeline, compiled here once (internal.h).
+BINPICK_SEGMENTATION_TEMPLATES(BINPICK_INSTANTIATE_TEMPLATE)
+
 namespace binpick {
 
 // pcl::EuclideanClusterExtraction (thesis 3.4.1.3) on an uploaded cloud, reusing its kd-tree

@@ -16,6 +16,61 @@
 
 #include "binpick_pcl.h"
 
+// Build time: PCL_NO_PRECOMPILE (build.rs) compiles every PCL class a translation unit uses in
+// that unit. The classes used in several are compiled once, explicitly, and declared extern in
+// the others (same source, same flags: the same code). Every unit builds kd-trees; PCL's and
+// FLANN's kd-tree classes are compiled in common.cpp (flann::Index's constructor alone
+// instantiates all of FLANN's index types; LshIndex, for binary descriptors only, does not
+// compile for floats and stays implicit).
+#define BINPICK_SEARCH_TEMPLATES(X)                                  \
+  X(class flann::Index<flann::L2_Simple<float>>)                     \
+  X(class flann::KDTreeSingleIndex<flann::L2_Simple<float>>)         \
+  X(class flann::KDTreeIndex<flann::L2_Simple<float>>)               \
+  X(class flann::KMeansIndex<flann::L2_Simple<float>>)               \
+  X(class flann::CompositeIndex<flann::L2_Simple<float>>)            \
+  X(class flann::AutotunedIndex<flann::L2_Simple<float>>)            \
+  X(class flann::HierarchicalClusteringIndex<flann::L2_Simple<float>>) \
+  X(class flann::LinearIndex<flann::L2_Simple<float>>)               \
+  X(class pcl::KdTreeFLANN<pcl::PointXYZ>)                           \
+  X(class pcl::KdTreeFLANN<pcl::FPFHSignature33>)                    \
+  X(class pcl::search::KdTree<pcl::PointXYZ>)                        \
+  X(class pcl::search::KdTree<pcl::FPFHSignature33>)
+#define BINPICK_EXTERN_TEMPLATE(...) extern template __VA_ARGS__;
+#define BINPICK_INSTANTIATE_TEMPLATE(...) template __VA_ARGS__;
+BINPICK_SEARCH_TEMPLATES(BINPICK_EXTERN_TEMPLATE)
+
+// The classes the reference pipeline shares with one module's translation unit, compiled in
+// that unit (BINPICK_INSTANTIATE_TEMPLATE) and declared extern in the pipeline. Expanded only
+// where the module's PCL headers are included.
+#define BINPICK_FEATURES_TEMPLATES(X)                                         \
+  X(class pcl::Feature<pcl::PointXYZ, pcl::Normal>)                           \
+  X(class pcl::NormalEstimation<pcl::PointXYZ, pcl::Normal>)                  \
+  X(class pcl::NormalEstimationOMP<pcl::PointXYZ, pcl::Normal>)               \
+  X(class pcl::Feature<pcl::PointXYZ, pcl::FPFHSignature33>)                  \
+  X(class pcl::FeatureFromNormals<pcl::PointXYZ, pcl::Normal, pcl::FPFHSignature33>) \
+  X(class pcl::FPFHEstimation<pcl::PointXYZ, pcl::Normal, pcl::FPFHSignature33>) \
+  X(class pcl::FPFHEstimationOMP<pcl::PointXYZ, pcl::Normal, pcl::FPFHSignature33>)
+#define BINPICK_FILTERS_TEMPLATES(X)            \
+  X(class pcl::Filter<pcl::PointXYZ>)           \
+  X(class pcl::UniformSampling<pcl::PointXYZ>)  \
+  X(class pcl::VoxelGrid<pcl::PointXYZ>)
+#define BINPICK_SEGMENTATION_TEMPLATES(X) \
+  X(class pcl::EuclideanClusterExtraction<pcl::PointXYZ>)
+#define BINPICK_REGISTRATION_TEMPLATES(X)                                                  \
+  X(class pcl::registration::CorrespondenceEstimationBase<pcl::FPFHSignature33,            \
+                                                          pcl::FPFHSignature33, float>)    \
+  X(class pcl::registration::CorrespondenceEstimation<pcl::FPFHSignature33,                \
+                                                      pcl::FPFHSignature33, float>)        \
+  X(class pcl::registration::CorrespondenceEstimationBase<pcl::PointXYZ, pcl::PointXYZ,    \
+                                                          double>)                         \
+  X(class pcl::registration::CorrespondenceEstimation<pcl::PointXYZ, pcl::PointXYZ, double>) \
+  X(class pcl::registration::CorrespondenceRejectorSampleConsensus<pcl::PointXYZ>)         \
+  X(class pcl::SampleConsensusModelRegistration<pcl::PointXYZ>)                            \
+  X(class pcl::RandomSampleConsensus<pcl::PointXYZ>)                                       \
+  X(class pcl::Registration<pcl::PointXYZ, pcl::PointXYZ, double>)                         \
+  X(class pcl::IterativeClosestPoint<pcl::PointXYZ, pcl::PointXYZ, double>)                \
+  X(class pcl::registration::TransformationEstimationSVD<pcl::PointXYZ, pcl::PointXYZ, double>)
+
 namespace binpick {
 
 using PointCloudXYZ = pcl::PointCloud<pcl::PointXYZ>;

@@ -50,6 +50,12 @@
 #include "binpick-pcl/src/ffi.rs.h"
 #include "internal.h"
 
+// The PCL classes the bridge's modules compile (internal.h): declared here, not compiled again.
+BINPICK_FEATURES_TEMPLATES(BINPICK_EXTERN_TEMPLATE)
+BINPICK_FILTERS_TEMPLATES(BINPICK_EXTERN_TEMPLATE)
+BINPICK_SEGMENTATION_TEMPLATES(BINPICK_EXTERN_TEMPLATE)
+BINPICK_REGISTRATION_TEMPLATES(BINPICK_EXTERN_TEMPLATE)
+
 namespace binpick {
 namespace {
 
