@@ -22,6 +22,44 @@ use crate::{MatchError, OrientedPoints, P3};
 
 /// Empty cells beyond a rendered cell that make its side part of the model's outline.
 const OUTLINE_GAP: i64 = 3;
+/// Margin of the back-face skip in `RangeGrid::render`: far above the rounding by which a
+/// normal's cosine to the sensor measured in the model's frame can differ from the one
+/// measured in the scene's (under 1e-12 at any working distance), far below any incidence
+/// limit.
+const CULL_MARGIN: f64 = 1e-9;
+
+/// The sensor seen from the model's frame (`RangeGrid::render`).
+enum SensorInModel {
+    /// Orthographic: the unit direction towards the sensor.
+    Direction(Vector3<f64>),
+    /// Perspective: the sensor's position.
+    Position(Point3<f64>),
+}
+
+impl SensorInModel {
+    /// `sensor` seen from the frame of a model placed at `pose`.
+    fn new(sensor: &Sensor, pose: &Isometry3<f64>) -> Self {
+        let inverse = pose.inverse();
+        match sensor {
+            Sensor::Orthographic { up } => SensorInModel::Direction(inverse.rotation * up),
+            Sensor::Perspective { position, .. } => SensorInModel::Position(inverse * position),
+        }
+    }
+
+    /// Whether the cosine between normal `n` at `p` and the direction to the sensor is below
+    /// `limit` (false for a point at the sensor or non-finite input).
+    fn faces_away(&self, p: &P3, n: &P3, limit: f64) -> bool {
+        let n = Vector3::new(f64::from(n[0]), f64::from(n[1]), f64::from(n[2]));
+        match self {
+            SensorInModel::Direction(d) => n.dot(d) < limit,
+            SensorInModel::Position(c) => {
+                let d = c - to_point(p);
+                let length = d.norm();
+                length > 0.0 && n.dot(&d) < limit * length
+            }
+        }
+    }
+}
 
 /// Fit weight of a model cell explained only by a neighbouring cell's surface, off the
 /// outline: a cell of lateral slack, allowed but not worth a match in place.
@@ -582,7 +620,20 @@ impl RangeGrid {
         mut facing: Option<&mut Vec<FacingPoint>>,
     ) -> Rendering {
         let mut cells: Vec<RenderedCell> = Vec::with_capacity(model.len());
+        // A point whose normal faces away from the sensor by a clear margin, measured in the
+        // model's frame, is skipped before it is moved (moving a point and its normal is most
+        // of the cost, and about half of a part's surface faces away). The exact test below
+        // still decides every other point, so the same points are rendered and listed.
+        let skip_below = if facing.is_some() {
+            max_incidence_cos.min(0.0)
+        } else {
+            max_incidence_cos
+        } - CULL_MARGIN;
+        let sensor_in_model = SensorInModel::new(&self.projector.sensor, pose);
         for (i, (p, n)) in model.points.iter().zip(&model.normals).enumerate() {
+            if sensor_in_model.faces_away(p, n, skip_below) {
+                continue;
+            }
             let q = pose * to_point(p);
             let normal =
                 pose.rotation * Vector3::new(f64::from(n[0]), f64::from(n[1]), f64::from(n[2]));
@@ -985,6 +1036,71 @@ pub(crate) mod tests {
         )
         .unwrap();
         (grid, view)
+    }
+
+    #[test]
+    fn a_point_skipped_as_facing_away_fails_the_exact_incidence_test_too() {
+        // Normals at cosines to the sensor on both sides of the limit and within 1e-8 of it
+        // (f32 rounding spreads them), many poses, both kinds of sensor: whatever the
+        // model-frame test skips, render's own test in the scene's frame refuses as well, and
+        // it skips everything clearly facing away.
+        let limit = 75f64.to_radians().cos();
+        let sensors = [
+            Sensor::orthographic([0.1, -0.2, 1.0]).unwrap(),
+            Sensor::perspective([30.0, -20.0, 900.0], [0.0, 0.0, 0.0]).unwrap(),
+        ];
+        let mut state = 0x2545_f491_4f6c_dd1d_u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (mut skipped, mut near) = (0, 0);
+        for sensor in &sensors {
+            for _ in 0..200 {
+                let pose = Isometry3::new(
+                    Vector3::new(
+                        next() * 200.0 - 100.0,
+                        next() * 200.0 - 100.0,
+                        next() * 50.0,
+                    ),
+                    Vector3::new(next() - 0.5, next() - 0.5, next() - 0.5) * 6.0,
+                );
+                let seen_from_model = SensorInModel::new(sensor, &pose);
+                for j in 0..200 {
+                    let p: P3 = [0, 1, 2].map(|_| (next() * 80.0 - 40.0) as f32);
+                    let q = pose * to_point(&p);
+                    let towards = sensor.towards(&q);
+                    let across = towards
+                        .cross(&Vector3::new(next(), next(), next()))
+                        .normalize();
+                    let cos = if j % 2 == 0 {
+                        limit + (next() - 0.5) * 1e-7
+                    } else {
+                        next() * 2.0 - 1.0
+                    };
+                    let in_scene = towards * cos + across * (1.0 - cos * cos).sqrt();
+                    let n_model = pose.rotation.inverse() * in_scene;
+                    let n: P3 = [n_model.x as f32, n_model.y as f32, n_model.z as f32];
+                    let exact = (pose.rotation
+                        * Vector3::new(f64::from(n[0]), f64::from(n[1]), f64::from(n[2])))
+                    .dot(&towards);
+                    near += usize::from((exact - limit).abs() < 1e-8);
+                    if seen_from_model.faces_away(&p, &n, limit - CULL_MARGIN) {
+                        skipped += 1;
+                        assert!(exact < limit, "skipped at cosine {exact} (limit {limit})");
+                    } else {
+                        // And it skips every point clearly past the limit.
+                        assert!(exact >= limit - 1e-6, "kept at cosine {exact}");
+                    }
+                }
+            }
+        }
+        assert!(
+            skipped > 10_000 && near > 5_000,
+            "{skipped} skipped, {near} near"
+        );
     }
 
     /// The nearest per cell as first written: sorted by cell, then nearest first (stable),
