@@ -1049,13 +1049,8 @@ pub(crate) mod tests {
             Sensor::orthographic([0.1, -0.2, 1.0]).unwrap(),
             Sensor::perspective([30.0, -20.0, 900.0], [0.0, 0.0, 0.0]).unwrap(),
         ];
-        let mut state = 0x2545_f491_4f6c_dd1d_u64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut draw = crate::ppf::tests::xorshift(0x2545_f491);
+        let mut next = move || f64::from(draw(1 << 24)) / f64::from(1u32 << 24);
         let (mut skipped, mut near) = (0, 0);
         for sensor in &sensors {
             for _ in 0..200 {
