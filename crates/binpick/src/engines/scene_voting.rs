@@ -915,7 +915,9 @@ impl SceneVoting<'_> {
     /// well as the initial one: among touching parts ICP can slide a right pose onto a
     /// neighbour's surface (measured on a bin of rings: true poses refined from a view fit
     /// of 0.77 down to 0.37-0.54). A pose hopeless at the start (`ExplainConfig::hopeless`)
-    /// is probed after a few iterations and stops there when it still is.
+    /// is probed after a few iterations and stops there when it still is; a refined pose
+    /// refused by more than the unhidden pass can change (`ExplainConfig::past_refining`)
+    /// skips that pass.
     fn refine_if_better(
         &self,
         verifier: &Verifier,
@@ -950,7 +952,7 @@ impl SceneVoting<'_> {
         } else {
             (refined, icp_report(Some(&out), true), after)
         };
-        if stopped_hopeless || !self.params.verify.unhidden_pass {
+        if stopped_hopeless || !self.params.verify.unhidden_pass || accept.past_refining(&score) {
             return Ok((pose, report, score));
         }
         Ok(self
