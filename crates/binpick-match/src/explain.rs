@@ -27,9 +27,9 @@ pub const HOPELESS_SHARE: f64 = 0.5;
 pub const TURN_MAX_FREE_SPACE: f64 = 0.10;
 /// A refined pose that sees through more than this many times `max_free_space` is past the
 /// last fine ICP pass ([`ExplainConfig::past_refining`]). Measured on the generalisation
-/// benchmark (seeds 1-4, all sets, 27 000 candidates): of the 8 205 poses beyond 5 times the
-/// limit after the two refining passes, the last pass made 9 acceptable and none taken; of
-/// the 10 341 beyond 3.3 times, 22 and 2.
+/// benchmark (seeds 1-4, all sets): of the 4 214 poses refused for free space beyond 5 times
+/// the limit after the two refining passes, the last pass made 9 acceptable and none taken;
+/// of the 6 121 beyond 3.3 times, 23 and 3.
 pub const PAST_REFINING_FREE_SPACE: f64 = 5.0;
 
 /// Acceptance of one hypothesis and the competition between them.
@@ -144,8 +144,9 @@ impl ExplainConfig {
     /// Whether `s`, the score of a pose already refined, is refused by more than a last fine
     /// ICP pass can change: the scene confirms too little of it, or it sees through more than
     /// [`PAST_REFINING_FREE_SPACE`] times the free space allowed. That pass moves a pose by a
-    /// fraction of a tolerance; of 7 318 poses refused for visibility after the two refining
-    /// passes (seeds 1-4 of the generalisation benchmark), it made one acceptable (a repeat).
+    /// fraction of a tolerance; of 8 687 poses refused for too little seen after the two
+    /// refining passes (seeds 1-4 of the generalisation benchmark), it made one acceptable (a
+    /// repeat).
     pub fn past_refining(&self, s: &ViewScore) -> bool {
         match self.rejection(s) {
             Some(Rejection::TooLittleSurface | Rejection::LowVisibility) => true,
