@@ -916,7 +916,7 @@ impl SceneVoting<'_> {
     /// neighbour's surface (measured on a bin of rings: true poses refined from a view fit
     /// of 0.77 down to 0.37-0.54). A pose hopeless at the start (`ExplainConfig::hopeless`)
     /// is probed after a few iterations and stops there when it still is; a refined pose
-    /// refused by more than the unhidden pass can change (`ExplainConfig::past_refining`)
+    /// refused by more than the unhidden pass changes (`ExplainConfig::past_refining`)
     /// skips that pass.
     fn refine_if_better(
         &self,

@@ -614,8 +614,8 @@ stage_config! {
         /// does); adopted when the part fits closer without explaining less. Under its
         /// neighbours a part is otherwise pulled towards them, and its right pose fails
         /// `min_fit` (measured on bins of rings and rods: fits 0.5-0.65 and 1-2 mm off).
-        /// Skipped for a pose refused by more than it can change (too little seen, or 5
-        /// times the free space allowed): on them went 14 % of the refinement's ICP work.
+        /// Skipped for a pose refused by more than it changes: too little of the part seen,
+        /// or far more free space than allowed (`ExplainConfig::past_refining`).
         unhidden_pass: bool = true, any();
         /// Each part taken gets a last fine pass on the surface the scene does not hide that
         /// pairs only mutual nearest neighbours (PCL's reciprocal correspondences), adopted
