@@ -767,17 +767,27 @@ mod tests {
             !config.past_refining(&explaining(0..100, 0.3, 100)),
             "a poor fit a last pass may close"
         );
-        // Refused for free space: within 5 x the limit a last pass may still clear it ...
+        // Refused for free space: past it only beyond twice the share whose turns are tried
+        // (a last pass may bring the turns in) ...
         assert_eq!(
             config.rejection(&seeing_through(4, 100)),
             Some(Rejection::FreeSpace)
         );
-        assert!(!config.past_refining(&seeing_through(15, 100)));
         assert!(!config.past_refining(&seeing_through(20, 100)));
         assert!(config.past_refining(&seeing_through(21, 100)));
-        // ... and within twice the share whose turns are tried, it may bring its turns in:
-        // 16 cells through 100 confirmed (beyond 5 x) but 16 % of 100 visible is kept.
-        assert!(!config.past_refining(&seeing_through(16, 100)));
+        // 30 cells through 100 confirmed is 10 x the limit, but 15 % of 200 visible.
+        assert!(!config.past_refining(&seeing_through(30, 200)));
+        // ... and beyond 5 x the limit per confirmed cell.
+        let lenient = ExplainConfig {
+            max_free_space: 0.1,
+            ..config.clone()
+        };
+        assert_eq!(
+            lenient.rejection(&seeing_through(40, 100)),
+            Some(Rejection::FreeSpace)
+        );
+        assert!(!lenient.past_refining(&seeing_through(50, 100)));
+        assert!(lenient.past_refining(&seeing_through(51, 100)));
         // Too little of it seen.
         assert_eq!(
             config.rejection(&explaining(0..40, 0.9, 100)),
