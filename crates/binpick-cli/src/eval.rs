@@ -494,77 +494,43 @@ pub fn print_table(run: &EvalRun, preset: &str) {
         "{:<44} {:>6} {:>9} {:>9}",
         "property", "symbol", "ours", "thesis"
     );
-    println!("{:<44} {:>6} {:>9}", "files processed", "F", t.files);
-    println!(
-        "{:<44} {:>6} {:>9}",
-        "pickable objects in the clouds", "P", t.pickable
-    );
-    println!(
-        "{:<44} {:>6} {:>9}",
-        "pickable objects recognised", "R", t.recognised
-    );
-    println!(
-        "{:<44} {:>6} {:>9}",
-        "false negatives", "FN", t.false_negatives
-    );
-    println!(
-        "{:<44} {:>6} {:>9}",
-        "files with a false positive", "FP", t.files_with_false_positive
-    );
-    println!(
-        "{:<44} {:>6} {:>9}",
-        "files with an aligned unpickable object", "NP", t.files_with_unpickable
-    );
-    println!(
-        "{:<44} {:>6} {:>9}",
-        "bad cycles by false best", "FB", t.false_best
-    );
-    println!(
-        "{:<44} {:>6} {:>9}",
-        "bad cycles by starvation", "S", t.starvation
-    );
-    println!(
-        "{:<44} {:>6} {:>7.1} % {}",
-        "recognition rate",
-        "R/P",
-        p.recognition,
-        thv(|x| x.recognition)
-    );
-    println!(
-        "{:<44} {:>6} {:>7.1} % {}",
-        "false negatives",
-        "FN/P",
-        p.false_negatives,
-        thv(|x| x.false_negatives)
-    );
-    println!(
-        "{:<44} {:>6} {:>7.1} % {}",
-        "clouds with false positives",
-        "FP/F",
-        p.files_with_false_positive,
-        thv(|x| x.files_with_false_positive)
-    );
-    println!(
-        "{:<44} {:>6} {:>7.1} % {}",
-        "clouds with unpickable objects",
-        "NP/F",
-        p.files_with_unpickable,
-        thv(|x| x.files_with_unpickable)
-    );
-    println!(
-        "{:<44} {:>6} {:>7.1} % {}",
-        "bad cycles by false best",
-        "FB/F",
-        p.false_best,
-        thv(|x| x.false_best)
-    );
-    println!(
-        "{:<44} {:>6} {:>7.1} % {}",
-        "bad cycles by starvation",
-        "S/F",
-        p.starvation,
-        thv(|x| x.starvation)
-    );
+    let counts = [
+        ("files processed", "F", t.files),
+        ("pickable objects in the clouds", "P", t.pickable),
+        ("pickable objects recognised", "R", t.recognised),
+        ("false negatives", "FN", t.false_negatives),
+        (
+            "files with a false positive",
+            "FP",
+            t.files_with_false_positive,
+        ),
+        (
+            "files with an aligned unpickable object",
+            "NP",
+            t.files_with_unpickable,
+        ),
+        ("bad cycles by false best", "FB", t.false_best),
+        ("bad cycles by starvation", "S", t.starvation),
+    ];
+    for (property, symbol, n) in counts {
+        println!("{property:<44} {symbol:>6} {n:>9}");
+    }
+    type Percent = fn(&binpick_eval::ThesisPercents) -> f64;
+    let percents: [(&str, &str, Percent); 6] = [
+        ("recognition rate", "R/P", |x| x.recognition),
+        ("false negatives", "FN/P", |x| x.false_negatives),
+        ("clouds with false positives", "FP/F", |x| {
+            x.files_with_false_positive
+        }),
+        ("clouds with unpickable objects", "NP/F", |x| {
+            x.files_with_unpickable
+        }),
+        ("bad cycles by false best", "FB/F", |x| x.false_best),
+        ("bad cycles by starvation", "S/F", |x| x.starvation),
+    ];
+    for (property, symbol, f) in percents {
+        println!("{property:<44} {symbol:>6} {:>7.1} % {}", f(&p), thv(f));
+    }
     println!(
         "{:<44} {:>6} {:>7.1} %",
         "precision (correct / all detections)", "", p.precision

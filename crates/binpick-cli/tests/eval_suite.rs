@@ -115,3 +115,66 @@ fn a_benchmark_root_gives_one_table_with_each_sets_own_figures() {
         "{err}"
     );
 }
+
+#[test]
+fn one_dataset_prints_the_thesis_table_with_its_own_figures() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let tiny = repo().join("data/tiny");
+    let run = binpick(&[
+        "eval",
+        s(&tiny),
+        "--model",
+        "A",
+        "--preset",
+        "A",
+        "--out",
+        s(&out),
+        "-q",
+    ]);
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(run.status.success(), "{stdout}");
+    let summary = json(&out.join("summary.json"));
+    let row = |symbol: &str| {
+        stdout
+            .lines()
+            .find(|l| l.split_whitespace().any(|w| w == symbol))
+            .unwrap_or_else(|| panic!("no {symbol} row: {stdout}"))
+            .trim_end()
+            .to_string()
+    };
+    let counts = [
+        ("F", "files"),
+        ("P", "pickable"),
+        ("R", "recognised"),
+        ("FN", "false_negatives"),
+        ("FP", "files_with_false_positive"),
+        ("NP", "files_with_unpickable"),
+        ("FB", "false_best"),
+        ("S", "starvation"),
+    ];
+    for (symbol, key) in counts {
+        let n = summary["table"][key].as_u64().unwrap();
+        assert!(
+            row(symbol).ends_with(&format!(" {n}")),
+            "{symbol}: {stdout}"
+        );
+    }
+    // Ours to one decimal, then the thesis's own figure for configuration A (table 5.5.2).
+    let percents = [
+        ("R/P", "recognition", 86),
+        ("FN/P", "false_negatives", 14),
+        ("FP/F", "files_with_false_positive", 2),
+        ("NP/F", "files_with_unpickable", 22),
+        ("FB/F", "false_best", 0),
+        ("S/F", "starvation", 2),
+    ];
+    for (symbol, key, thesis) in percents {
+        let ours = summary["percents"][key].as_f64().unwrap();
+        let line = row(symbol);
+        assert!(
+            line.contains(&format!("{ours:.1} %")) && line.ends_with(&format!(" {thesis} %")),
+            "{symbol}: {line}"
+        );
+    }
+}
