@@ -482,7 +482,8 @@ pub fn print_table(run: &EvalRun, preset: &str) {
     let t = &run.table;
     let p = t.percents();
     let th = thesis_reference(preset);
-    let thv = |f: fn(&binpick_eval::ThesisPercents) -> f64| match th {
+    type Percent = fn(&binpick_eval::ThesisPercents) -> f64;
+    let thv = |f: Percent| match th {
         Some(x) if !f(&x).is_nan() => format!("{:>6.0} %", f(&x)),
         _ => "       -".into(),
     };
@@ -515,7 +516,6 @@ pub fn print_table(run: &EvalRun, preset: &str) {
     for (property, symbol, n) in counts {
         println!("{property:<44} {symbol:>6} {n:>9}");
     }
-    type Percent = fn(&binpick_eval::ThesisPercents) -> f64;
     let percents: [(&str, &str, Percent); 6] = [
         ("recognition rate", "R/P", |x| x.recognition),
         ("false negatives", "FN/P", |x| x.false_negatives),
