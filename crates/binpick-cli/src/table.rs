@@ -126,7 +126,7 @@ pub fn voting_summary(v: &binpick::VotingReport) -> String {
         )
     });
     format!(
-        "{}: {} samples, {} votes, {} hypotheses ({} laid from flat faces), {} candidates verified, {} accepted; refused: {} too little surface, {} low visibility, {} free space, {} sunk into support, {} on support, {} no outline, {} poor fit, {} repeats, {} laid from a face against the scan's normals{refused}",
+        "{}: {} samples, {} votes, {} hypotheses ({} laid from flat faces), {} candidates verified, {} accepted; refused: {} too little surface, {} low visibility, {} free space, {} crossing a part, {} sunk into support, {} on support, {} no outline, {} poor fit, {} repeats, {} laid from a face against the scan's normals{refused}",
         v.sensor,
         v.scene_samples,
         v.votes,
@@ -137,6 +137,7 @@ pub fn voting_summary(v: &binpick::VotingReport) -> String {
         v.rejected_too_little_surface,
         v.rejected_low_visibility,
         v.rejected_free_space,
+        v.rejected_crossing,
         v.rejected_below_support,
         v.rejected_on_support,
         v.rejected_no_outline,

@@ -35,6 +35,9 @@ pub const PAST_REFINING_FREE_SPACE: f64 = 5.0;
 /// can bring a pose within the share whose turns are tried, and a plate voted the wrong way
 /// round (seen through at 0.12-0.14 before the pass, 0.08-0.10 after) was found only so.
 pub const PAST_REFINING_FREE_SPACE_TURNS: f64 = 2.0;
+/// A pose is refused for crossing a part ([`Rejection::CrossesPart`]) only with at least
+/// this many crossing cells: one or two are a pose error at an edge beside a neighbour.
+pub const MIN_CROSSING_CELLS: u32 = 3;
 
 /// Acceptance of one hypothesis and the competition between them.
 #[derive(Clone, Debug, PartialEq)]
@@ -45,6 +48,10 @@ pub struct ExplainConfig {
     /// the scene confirms (a part half hidden may see through half as much of its view).
     /// Range 0-1.
     pub max_free_space: f64,
+    /// Most crossing cells ([`ViewScore::crossing`]: seen through beside a part's surface
+    /// that hides the pose) per explained cell, once there are [`MIN_CROSSING_CELLS`]: a
+    /// pose passing through a part the sensor saw. Range 0-1 (1 = off).
+    pub max_crossing: f64,
     /// Largest share of its outline the scene's surface may carry on past where no taken
     /// part explains that surface (checked in the competition: a neighbouring part taken
     /// first accounts for the surface beside it). Range 0-1 (1 = off).
@@ -104,6 +111,7 @@ impl ExplainConfig {
         for (name, share) in [
             ("min_visibility", self.min_visibility),
             ("max_free_space", self.max_free_space),
+            ("max_crossing", self.max_crossing),
             ("min_fit", self.min_fit),
             ("occluded_min_fit", self.occluded_min_fit),
             ("occluded_below_visibility", self.occluded_below_visibility),
@@ -188,11 +196,13 @@ impl ExplainConfig {
     /// Whether the near-symmetric turns of a pose scored `s` are worth trying: it is
     /// acceptable, or refused as a part voted the wrong way round would be, where its turns
     /// differ: the scene lies beside that flange (a poor fit) or the sensor saw through it
-    /// (free space, up to [`TURN_MAX_FREE_SPACE`]).
+    /// (free space or a crossing, while it sees through at most [`TURN_MAX_FREE_SPACE`]).
     pub fn worth_turning(&self, s: &ViewScore) -> bool {
         match self.rejection(s) {
             None | Some(Rejection::PoorFit) => true,
-            Some(Rejection::FreeSpace) => s.free_space_ratio() <= TURN_MAX_FREE_SPACE,
+            Some(Rejection::FreeSpace | Rejection::CrossesPart) => {
+                s.free_space_ratio() <= TURN_MAX_FREE_SPACE
+            }
             Some(_) => false,
         }
     }
@@ -205,6 +215,9 @@ impl ExplainConfig {
             Some(Rejection::LowVisibility)
         } else if s.free_space_per_explained() > self.max_free_space {
             Some(Rejection::FreeSpace)
+        } else if s.crossing >= MIN_CROSSING_CELLS && s.crossing_per_explained() > self.max_crossing
+        {
+            Some(Rejection::CrossesPart)
         } else if s.sunk_mm > self.max_sunk_mm || s.below_support_ratio() > self.max_below_support {
             Some(Rejection::BelowSupport)
         } else if s.support_explained_ratio() > self.max_explained_by_support {
@@ -226,6 +239,9 @@ pub enum Rejection {
     LowVisibility,
     /// More free-space contradictions per explained cell than `max_free_space`.
     FreeSpace,
+    /// More crossing cells per explained cell than `max_crossing`: it passes through a
+    /// part the sensor saw.
+    CrossesPart,
     /// More than `max_below_support` of the part, or its deepest point by more than
     /// `max_sunk_mm`, lies behind a support plane.
     BelowSupport,
@@ -476,6 +492,7 @@ mod tests {
         ExplainConfig {
             min_visibility: 0.5,
             max_free_space: 0.1,
+            max_crossing: 1.0,
             max_continued: 0.2,
             min_fit: 0.5,
             occluded_min_fit: 0.5,
@@ -820,6 +837,41 @@ mod tests {
         assert!(half.free_space_ratio() < config.max_free_space);
         assert_eq!(config.rejection(&half), Some(Rejection::FreeSpace));
         assert_eq!(config.rejection(&seeing_through(100, 3, 200)), None);
+    }
+
+    #[test]
+    fn a_pose_crossing_a_part_is_refused_from_three_cells() {
+        let config = ExplainConfig {
+            min_visibility: 0.45,
+            max_free_space: 0.03,
+            max_crossing: 0.004,
+            ..square_parts()
+        };
+        let crossing = |explained: u32, crossing: u32| ViewScore {
+            free_space: crossing,
+            crossing,
+            ..explaining(0..explained, 0.9, explained)
+        };
+        // 1 000 cells confirmed: 4 crossing cells are within the share, 5 are not.
+        assert_eq!(config.rejection(&crossing(1000, 4)), None);
+        assert_eq!(
+            config.rejection(&crossing(1000, 5)),
+            Some(Rejection::CrossesPart)
+        );
+        // A small part: 2 crossing cells of 300 are over the share but too few to judge.
+        assert_eq!(config.rejection(&crossing(300, 2)), None);
+        assert_eq!(
+            config.rejection(&crossing(300, 3)),
+            Some(Rejection::CrossesPart)
+        );
+        // Seen through as much away from any part hidden: free space only, within its limit.
+        let apart = ViewScore {
+            crossing: 0,
+            ..crossing(300, 3)
+        };
+        assert_eq!(config.rejection(&apart), None);
+        // Its near-symmetric turns are tried, as for a pose seen through.
+        assert!(config.worth_turning(&crossing(300, 3)));
     }
 
     #[test]

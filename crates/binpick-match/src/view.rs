@@ -65,6 +65,12 @@ impl SensorInModel {
 /// outline: a cell of lateral slack, allowed but not worth a match in place.
 pub const NEIGHBOUR_FIT_WEIGHT: f64 = 0.25;
 
+/// A free-space cell within this many cells (either way along both grid axes) of a cell a
+/// part hides is a crossing ([`ViewScore::crossing`]): where a pose's surface passes from
+/// in front of a part's surface to behind it, the view's tolerance leaves a band a cell or
+/// two wide between the cells seen through and the hidden ones.
+const CROSSING_CELLS: i64 = 2;
+
 /// Where the sensor is. "Closeness" below is a coordinate that grows towards the sensor, mm.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Sensor {
@@ -326,6 +332,11 @@ pub struct ViewScore {
     /// lying farther from the model than the support band: a part laid on the support
     /// rather than seen.
     pub explained_by_support: u32,
+    /// Free-space cells within [`CROSSING_CELLS`] of a cell a part hides (its nearer surface
+    /// is not background): the pose passes through a part the sensor saw, in front of that
+    /// surface on one side (seen through) and behind it on the other. A part lying under
+    /// another is hidden where the other lies on it but is not seen through beside it.
+    pub crossing: u32,
 }
 
 impl ViewScore {
@@ -351,6 +362,11 @@ impl ViewScore {
     /// what it confirms.
     pub fn free_space_per_explained(&self) -> f64 {
         ratio(self.free_space, self.explained)
+    }
+
+    /// Crossing cells ([`ViewScore::crossing`]) per explained cell.
+    pub fn crossing_per_explained(&self) -> f64 {
+        ratio(self.crossing, self.explained)
     }
 
     /// Share of the explained cells explained by background.
@@ -696,6 +712,9 @@ impl RangeGrid {
         };
         let tol = self.tolerance_mm;
         let mut hidden = vec![false; rendered.cells.len()];
+        // Cells a part hides (`CellState::HiddenByPart`) and those seen through, for the
+        // crossings.
+        let mut state = vec![CellState::Other; rendered.cells.len()];
         for (ci, cell) in rendered.cells.iter().enumerate() {
             let (c, r, m) = (cell.col, cell.row, cell.closeness);
             let t = tol + cell.slack;
@@ -769,15 +788,22 @@ impl RangeGrid {
             } else if front {
                 s.occluded += 1;
                 hidden[ci] = true;
+                if front_is_object {
+                    state[ci] = CellState::HiddenByPart;
+                }
                 let on_outline = on_outline.unwrap_or_else(|| rendered.on_outline(c, r));
                 s.covered += u32::from(front_is_object && !on_outline);
             } else if behind {
                 s.free_space += 1;
+                state[ci] = CellState::SeenThrough;
             } else if !any {
                 s.missing += 1;
             }
         }
         self.outline(&rendered, &hidden, &mut s);
+        if s.free_space > 0 && s.occluded > 0 {
+            s.crossing = rendered.crossings(&state);
+        }
         s
     }
 
@@ -965,16 +991,39 @@ impl Rendering {
     }
 
     fn get(&self, col: i64, row: i64) -> Option<&RenderedCell> {
-        let (c, r) = (col - self.col0, row - self.row0);
-        if !((0..self.cols).contains(&c) && (0..self.rows).contains(&r)) {
-            return None;
-        }
-        self.cells
-            .get(self.at[(r * self.cols + c) as usize] as usize)
+        self.index(col, row).map(|i| &self.cells[i])
     }
 
     fn has(&self, col: i64, row: i64) -> bool {
         self.get(col, row).is_some()
+    }
+
+    /// Index into `cells` of cell (`col`, `row`), when the model covers it.
+    fn index(&self, col: i64, row: i64) -> Option<usize> {
+        let (c, r) = (col - self.col0, row - self.row0);
+        if !((0..self.cols).contains(&c) && (0..self.rows).contains(&r)) {
+            return None;
+        }
+        let i = self.at[(r * self.cols + c) as usize];
+        (i != u32::MAX).then_some(i as usize)
+    }
+
+    /// Cells seen through within [`CROSSING_CELLS`] of a cell a part hides (`state[i]` of
+    /// `cells[i]`).
+    fn crossings(&self, state: &[CellState]) -> u32 {
+        let near_hidden = |cell: &RenderedCell| {
+            (-CROSSING_CELLS..=CROSSING_CELLS).any(|dr| {
+                (-CROSSING_CELLS..=CROSSING_CELLS).any(|dc| {
+                    self.index(cell.col + dc, cell.row + dr)
+                        .is_some_and(|k| state[k] == CellState::HiddenByPart)
+                })
+            })
+        };
+        self.cells
+            .iter()
+            .zip(state)
+            .filter(|&(cell, st)| *st == CellState::SeenThrough && near_hidden(cell))
+            .count() as u32
     }
 
     /// Whether the side (`dc`, `dr`) of cell (`col`, `row`) is an edge of the outline. The
@@ -988,6 +1037,16 @@ impl Rendering {
     fn on_outline(&self, col: i64, row: i64) -> bool {
         SIDES.iter().any(|&(dc, dr)| self.is_edge(col, row, dc, dr))
     }
+}
+
+/// What the scene shows in a rendered cell, as far as crossings go.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum CellState {
+    /// A part's surface (not background) lies in front of the model there.
+    HiddenByPart,
+    /// The sensor saw a surface behind the model there.
+    SeenThrough,
+    Other,
 }
 
 /// The four sides of a cell, (column, row) steps.
@@ -1345,6 +1404,44 @@ pub(crate) mod tests {
         // The same neighbour over the tile's middle covers it.
         let (covered, _) = covered_with(&|p| (15.0..25.0).contains(&p[1]) && p[0] < 15.0);
         assert!(covered >= 100, "covered {covered}");
+    }
+
+    #[test]
+    fn a_pose_through_a_part_crosses_it_and_one_under_a_part_does_not() {
+        // The 20 x 20 mm tile (x 0-19, y 10-29) at z = 0.
+        let tile = tile_20mm(0.0);
+        let score = |scene: &[P3], background: &[bool]| {
+            let (grid, view) = top_view_grid(scene, background);
+            grid.score(&tile, &Isometry3::identity(), &view)
+        };
+        // A part's sheet rising across the tile, 4 mm per cell, level with it at x = 10:
+        // seen through up to x = 8, hidden from x = 10 (x = 9 sees the sheet in front a cell
+        // away). Only the column at x = 8 lies within two cells of the hidden ones.
+        let steep: Vec<P3> = rows(0.0, 0..40)
+            .into_iter()
+            .map(|p| [p[0], p[1], 4.0 * (p[0] - 10.0)])
+            .collect();
+        let s = score(&steep, &vec![false; steep.len()]);
+        assert_eq!((s.free_space, s.crossing), (9 * 20, 20));
+        // The tile under a neighbour (z = 5 from x = 10, y 15-24), its pose 2 mm past the
+        // part's edge over the floor (z = -10 for x < 2): seen through and covered, but
+        // far apart.
+        let under: Vec<P3> = rows(0.0, 0..40)
+            .into_iter()
+            .map(|p| {
+                if p[0] < 2.0 {
+                    [p[0], p[1], -10.0]
+                } else if p[0] >= 10.0 && (15.0..25.0).contains(&p[1]) {
+                    [p[0], p[1], 5.0]
+                } else {
+                    p
+                }
+            })
+            .collect();
+        let floor: Vec<bool> = under.iter().map(|p| p[2] < -5.0).collect();
+        let s = score(&under, &floor);
+        assert!(s.free_space > 0 && s.covered > 0, "{s:?}");
+        assert_eq!(s.crossing, 0);
     }
 
     #[test]

@@ -168,6 +168,10 @@ pub struct ViewCheck {
     /// free to pick. Absent in older results: 0.
     #[serde(default)]
     pub contested: f64,
+    /// Cells seen through beside a part's surface that hides this one, per confirmed cell
+    /// (what `max_crossing` limits, once there are three). Absent in older results: 0.
+    #[serde(default)]
+    pub crossing: f64,
 }
 
 impl ViewCheck {
@@ -733,6 +737,9 @@ pub struct VotingReport {
     pub rejected_low_visibility: usize,
     /// Refused: the sensor saw through too much of it (free space).
     pub rejected_free_space: usize,
+    /// Refused: it passes through a part the sensor saw (`max_crossing`).
+    #[serde(default)]
+    pub rejected_crossing: usize,
     /// Refused: it would sink into a support plane (belt, floor, bin wall).
     #[serde(default)]
     pub rejected_below_support: usize,

@@ -1169,6 +1169,7 @@ impl SceneVoting<'_> {
         ExplainConfig {
             min_visibility: v.min_visibility,
             max_free_space: v.max_free_space,
+            max_crossing: v.max_crossing,
             max_below_support: v.max_below_support,
             max_sunk_mm: v.max_sunk_tolerances * verifier.tolerance_mm(),
             // Applied to later rounds only (`detect`).
@@ -1205,6 +1206,7 @@ impl SceneVoting<'_> {
                 Rejection::TooLittleSurface => r.rejected_too_little_surface += 1,
                 Rejection::LowVisibility => r.rejected_low_visibility += 1,
                 Rejection::FreeSpace => r.rejected_free_space += 1,
+                Rejection::CrossesPart => r.rejected_crossing += 1,
                 Rejection::BelowSupport => r.rejected_below_support += 1,
                 Rejection::OnSupport => r.rejected_on_support += 1,
                 Rejection::NoOutline => r.rejected_no_outline += 1,
@@ -1348,6 +1350,12 @@ fn refusal_reason(why: Rejection, s: &ViewScore) -> String {
         Rejection::FreeSpace => format!(
             "the sensor saw through {:.1} cells per 100 it confirms (max_free_space)",
             100.0 * s.free_space_per_explained()
+        ),
+        Rejection::CrossesPart => format!(
+            "it passes through a part the sensor saw: {} cells seen through beside that \
+             part's surface, {:.1} per 1000 it confirms (max_crossing)",
+            s.crossing,
+            1000.0 * s.crossing_per_explained()
         ),
         Rejection::BelowSupport => {
             "it sinks into the belt, floor or a wall (max_below_support, max_sunk_tolerances)"

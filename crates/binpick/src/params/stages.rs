@@ -521,6 +521,12 @@ stage_config! {
         /// Right poses see through at most 0.4 % in 95 % of the benchmark's parts, false ones
         /// 1 % in half.
         max_free_space: f64 = 0.03, within(0.0, 1.0, "");
+        /// A pose may see through at most this many cells beside a part that hides it, per
+        /// cell the scene confirms, once there are three (1 = off): a pose passing through a
+        /// part the sensor saw is in front of that part's surface on one side and behind it
+        /// on the other. A part lying under another is hidden but not seen through beside
+        /// it (README Results, "Forty-eighth pass").
+        max_crossing: f64 = 0.004, within(0.0, 1.0, "");
         /// At most this share of the part may lie behind a support plane that can carry a
         /// part (sunk into the belt, floor or a bin wall by more than three view
         /// tolerances; not a bin's rim, which the top of a pile sticks out past: before the

@@ -847,6 +847,7 @@ pub(crate) fn view_check(s: &ViewScore) -> ViewCheck {
         sunk_mm: s.sunk_mm,
         on_support: s.support_explained_ratio(),
         contested: 0.0,
+        crossing: s.crossing_per_explained(),
     }
 }
 
