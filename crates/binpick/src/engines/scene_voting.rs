@@ -1393,4 +1393,20 @@ mod tests {
         );
         assert!(refusal_reason(Rejection::BelowSupport, &s).contains("max_sunk_tolerances"));
     }
+
+    #[test]
+    fn a_refusal_for_crossing_a_part_gives_its_cells_and_the_share_the_rule_reads() {
+        let s = ViewScore {
+            visible: 1000,
+            explained: 800,
+            free_space: 6,
+            crossing: 4,
+            ..ViewScore::default()
+        };
+        assert_eq!(
+            refusal_reason(Rejection::CrossesPart, &s),
+            "it passes through a part the sensor saw: 4 cells seen through beside that \
+             part's surface, 5.0 per 1000 it confirms (max_crossing)"
+        );
+    }
 }
