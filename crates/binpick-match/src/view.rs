@@ -711,9 +711,7 @@ impl RangeGrid {
             ..ViewScore::default()
         };
         let tol = self.tolerance_mm;
-        let mut hidden = vec![false; rendered.cells.len()];
-        // Cells a part hides (`CellState::HiddenByPart`) and those seen through, for the
-        // crossings.
+        // Cells hidden (for the outline) and seen through (for the crossings).
         let mut state = vec![CellState::Other; rendered.cells.len()];
         for (ci, cell) in rendered.cells.iter().enumerate() {
             let (c, r, m) = (cell.col, cell.row, cell.closeness);
@@ -787,10 +785,11 @@ impl RangeGrid {
                 s.wrong_normal += 1;
             } else if front {
                 s.occluded += 1;
-                hidden[ci] = true;
-                if front_is_object {
-                    state[ci] = CellState::HiddenByPart;
-                }
+                state[ci] = if front_is_object {
+                    CellState::HiddenByPart
+                } else {
+                    CellState::HiddenByOther
+                };
                 let on_outline = on_outline.unwrap_or_else(|| rendered.on_outline(c, r));
                 s.covered += u32::from(front_is_object && !on_outline);
             } else if behind {
@@ -800,19 +799,23 @@ impl RangeGrid {
                 s.missing += 1;
             }
         }
-        self.outline(&rendered, &hidden, &mut s);
+        self.outline(&rendered, &state, &mut s);
         if s.free_space > 0 && s.occluded > 0 {
             s.crossing = rendered.crossings(&state);
         }
         s
     }
 
-    /// Counts the silhouette's edges of the cells the scene does not hide (`hidden[i]` for
+    /// Counts the silhouette's edges of the cells the scene does not hide (`state[i]` of
     /// `rendered.cells[i]`) and those the scene's surface carries on past (two cells out, at
     /// the edge cell's depth within the tolerance, same orientation, not background).
-    fn outline(&self, rendered: &Rendering, hidden: &[bool], s: &mut ViewScore) {
+    fn outline(&self, rendered: &Rendering, state: &[CellState], s: &mut ViewScore) {
         let tol = self.tolerance_mm;
-        let shown = rendered.cells.iter().zip(hidden).filter(|(_, h)| !**h);
+        let shown = rendered
+            .cells
+            .iter()
+            .zip(state)
+            .filter(|(_, st)| !st.hidden());
         for (cell, _) in shown {
             for (dc, dr) in SIDES {
                 if !rendered.is_edge(cell.col, cell.row, dc, dr) {
@@ -1039,14 +1042,22 @@ impl Rendering {
     }
 }
 
-/// What the scene shows in a rendered cell, as far as crossings go.
+/// What the scene shows in a rendered cell, as far as the outline and crossings go.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum CellState {
     /// A part's surface (not background) lies in front of the model there.
     HiddenByPart,
+    /// Something else lies in front of it (belt, bin, or a surface a cell away).
+    HiddenByOther,
     /// The sensor saw a surface behind the model there.
     SeenThrough,
     Other,
+}
+
+impl CellState {
+    fn hidden(self) -> bool {
+        matches!(self, CellState::HiddenByPart | CellState::HiddenByOther)
+    }
 }
 
 /// The four sides of a cell, (column, row) steps.
