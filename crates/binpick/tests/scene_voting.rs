@@ -993,7 +993,7 @@ fn a_bracket_standing_on_a_flange_end_is_laid_from_its_web() {
     // (3 037 points) shows the camera its web, a flat 40 x 26 mm rectangle, and the edge of
     // its upper flange. Every pair on the web votes alike for the flanges' wider faces: no
     // voted hypothesis came within 6 mm of it. Its web's patch laid on the model's web
-    // places it (within 1 mm and 2 deg before refinement). Off by default (README, Results,
+    // places it (within 1 mm and 2 deg before refinement). Off by default (docs/results-history.md,
     // "Forty-first pass"), so turned on here.
     let mut params = Params::default();
     params.voting.face_hypotheses = 40;

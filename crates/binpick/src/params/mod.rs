@@ -184,7 +184,7 @@ impl Preset {
         // 5.5: fixed for all conveyor tests.
         // 4.3: the thesis's absolute scale.
         // The thesis's engine: its configurations were tuned for it, and with its top-view
-        // scanned models the scene-voting engine finds more but picks worse (README, Results).
+        // scanned models the scene-voting engine finds more but picks worse (docs/results-history.md).
         let mut thesis = Params {
             engine: Engine::Thesis,
             ..Params::default()

@@ -219,7 +219,7 @@ stage_config! {
         /// Extension, retry: when the best initial alignment fails the final validation, the
         /// next best distinct ones go through ICP too, up to this many in all; the first one
         /// accepted is kept. 1 is the thesis: on our conveyor sets 3 found no more parts and
-        /// added false positives (README, Results).
+        /// added false positives (docs/results-history.md).
         final_candidates: u32 = 1, count(1, 20, "");
         /// Retried initial alignments must differ from every better one by more than this
         /// translation, in model diameters ...
@@ -468,7 +468,7 @@ stage_config! {
         secondary_peak_ratio: f64 = 0.6, within(0.0, 1.0, "");
         /// Of one reference point's scene pairs that share a feature bin and a rotation bin,
         /// only the first votes (Vidal et al. 2018; flat regions give many that vote alike).
-        /// A quarter off the voting; off by default (README, Results, "Twenty-sixth pass").
+        /// A quarter off the voting; off by default (docs/results-history.md, "Twenty-sixth pass").
         distinct_pairs: bool = false, any();
         /// Votes whose poses move the model's centre less than this, in diameters ...
         cluster_translation_diameters: f64 = 0.1, positive(1.0, "x diameter");
@@ -484,7 +484,7 @@ stage_config! {
         /// each flat patch of the scene left unexplained laid on the model's flat faces of
         /// about its size. Pairs on one plane vote alike, so voting cannot place a part that
         /// shows the sensor little but one face. Off by default: with 40 it found more parts
-        /// but laid plates on clutter faces, once as a first pick (README, Results,
+        /// but laid plates on clutter faces, once as a first pick (docs/results-history.md,
         /// "Forty-first pass").
         face_hypotheses: usize = 0, count(0, 10_000, "");
         /// Voting rounds: each next round votes again over the scene samples that no part
@@ -525,18 +525,18 @@ stage_config! {
         /// cell the scene confirms, once there are three (1 = off): a pose passing through a
         /// part the sensor saw is in front of that part's surface on one side and behind it
         /// on the other. A part lying under another is hidden but not seen through beside
-        /// it (README Results, "Forty-eighth pass").
+        /// it (docs/results-history.md, "Forty-eighth pass").
         max_crossing: f64 = 0.004, within(0.0, 1.0, "");
         /// At most this share of the part may lie behind a support plane that can carry a
         /// part (sunk into the belt, floor or a bin wall by more than three view
         /// tolerances; not a bin's rim, which the top of a pile sticks out past: before the
-        /// thirty-fourth pass the rim counted too, README Results).
+        /// thirty-fourth pass the rim counted too, docs/results-history.md).
         max_below_support: f64 = 0.05, within(0.0, 1.0, "");
         /// No point of the part may lie deeper than this many view tolerances behind such a
         /// plane: a resting part touches it, and pose error dips a corner less than a
         /// tolerance (a bent plate's flange 15 mm in the floor is a small share of the
         /// part). 2 before the thirty-third pass: of 3 641 right pickable detections on the
-        /// benchmark one sank deeper than a tolerance, of 100 false ones 13 (README Results).
+        /// benchmark one sank deeper than a tolerance, of 100 false ones 13 (docs/results-history.md).
         max_sunk_tolerances: f64 = 1.0, within(0.0, 100.0, "x tolerance");
         /// Candidates of later voting rounds (voted from what the taken parts leave
         /// unexplained, bin rims included): at most this share of their confirmed surface
@@ -607,13 +607,13 @@ stage_config! {
         /// its correspondences by less than this share (0 = off). Half the fine passes run
         /// all 15 iterations, creeping along the part's faces; 1e-3 saves 11 % of the
         /// correspondence searches but gave 0.03 more false detections per scan over seeds
-        /// 1-4 (README, Speed, "Seventh pass").
+        /// 1-4 (docs/speed-history.md, "Seventh pass").
         refine_relative_mse: f64 = 1e-4, within(0.0, 0.1, "");
         /// The two passes align only the model points the scan can confirm: not hidden by the
         /// scene, with a measurement in their cell or beside it (a neighbour over a part, or
         /// the scanner's shadow, leaves its points nothing of their own to pair with, and the
         /// nearest other surface pulls the pose off the part). False aligns every point the
-        /// sensor would see (before the thirty-second pass; README, Results).
+        /// sensor would see (before the thirty-second pass; docs/results-history.md).
         refine_confirmed_only: bool = true, any();
         /// After the two passes, one more fine pass on the model surface the scene does not
         /// hide (where the scene lies over the model by more than a tolerance, a neighbour
