@@ -13,6 +13,14 @@
 //! ```
 //! Only instances of the named model are listed in a ground-truth file; other parts in the
 //! scene are clutter. Symmetry lists include the identity.
+//!
+//! `visible_fraction` is BOP's visib_fract (`visible_points / alone_points`) on the datasets
+//! of `binpick synth generalisation`. On the thesis's datasets (`synth thesis-conveyor`,
+//! `thesis-arm`) it is the thesis's measure: the share of the model cloud's points (a top
+//! view) the scan shows, which is near 0 for a part lying upside down however plainly it
+//! shows; there `visible_points` and `alone_points` give BOP's as well
+//! ([`GtInstance::bop_visible_fraction`]), the measure for a model that has every side (a CAD
+//! mesh).
 
 use std::path::{Path, PathBuf};
 
@@ -57,18 +65,37 @@ pub const IDENTITY: RowMajor4x4 = [
 pub struct GtInstance {
     /// Model frame -> scene frame, row-major 4x4, mm.
     pub pose: RowMajor4x4,
-    /// Share (0..1) of the model's points that the scan actually shows at the true pose.
+    /// Share (0..1) of the instance the scan shows at the true pose (BOP's visib_fract, or
+    /// on the thesis's datasets the share of the model cloud's points: module docs).
     pub visible_fraction: f64,
     /// Whether a robot could pick it (the generator sets `visible_fraction >= 0.5`).
     pub pickable: bool,
     /// Scene points on this instance's surface (when the generator counted them).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub visible_points: Option<u64>,
-    /// Points the same scanner sees of this part alone in the same pose; with
-    /// `visible_points`, `visible_fraction = visible_points / alone_points` (BOP's
-    /// visib_fract).
+    /// Points the same scanner sees of this part alone in the same pose: with
+    /// `visible_points`, BOP's visib_fract ([`Self::bop_visible_fraction`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub alone_points: Option<u64>,
+}
+
+impl GtInstance {
+    /// BOP's visib_fract from point counts: `visible / alone`, capped at 1, 0 when the part
+    /// alone gives no point, rounded to 4 decimals as the generators write it.
+    pub fn visib_fract(visible: u64, alone: u64) -> f64 {
+        let fraction = if alone == 0 {
+            0.0
+        } else {
+            (visible as f64 / alone as f64).min(1.0)
+        };
+        (fraction * 1e4).round() / 1e4
+    }
+
+    /// BOP's visible fraction of this instance when the generator counted its points (None
+    /// otherwise): whatever the model, the share of the part the scan shows.
+    pub fn bop_visible_fraction(&self) -> Option<f64> {
+        Some(Self::visib_fract(self.visible_points?, self.alone_points?))
+    }
 }
 
 /// `gt/<id>.json`.

@@ -11,12 +11,15 @@ use serde::Serialize;
 use binpick_cloud::PointCloud;
 use binpick_cloud::dataset::{GroundTruth, write_json};
 
-use crate::models::{ModelLibrary, PICKABLE_FRACTION, ground_truth};
+use crate::models::{
+    ModelLibrary, PICKABLE_FRACTION, add_alone_counts, alone_visibility, ground_truth,
+};
 use crate::parts::{PartKind, PartLibrary};
 use crate::physics::{Environment, Instance, PhysicsSettings, Pile};
 use crate::plan::{GroupPlan, Layout, Preset, Recipe, draw_kinds, plan};
 use crate::rng::{Rng, derive_seed};
 use crate::scanner::{Scan, ScannerConfig, SceneGeometry, scan};
+use crate::sensor::Sensor;
 use crate::{GENERATOR_VERSION, SynthError};
 
 /// Options of [`generate`].
@@ -85,13 +88,23 @@ pub fn scan_instances(
     let geom = SceneGeometry::from_scene(environment, &instances, &models.parts)?;
     let s = scan(&geom, scanner, seed);
     let radius = visibility_radius(scanner);
-    let gt = ground_truth(
+    let mut gt = ground_truth(
         &format!("scenes/{scene_id}.pcd"),
         &instances,
         &s,
         models,
         radius,
     )?;
+    // BOP's counts beside the thesis's fraction: the scan's sample positions and random
+    // streams (`seed`), the part alone.
+    let counts = alone_visibility(
+        &instances,
+        &s,
+        &Sensor::LaserLine(scanner.clone()),
+        seed,
+        &models.parts,
+    )?;
+    add_alone_counts(&mut gt, &instances, &counts, models);
     Ok(SynthScene {
         environment: environment.clone(),
         instances,
@@ -537,10 +550,14 @@ fn run_job(
     Ok((records, timing))
 }
 
-/// Writes the models (`models/<name>.pcd` and `.json`).
+/// Writes the models (`models/<name>.pcd`, `.stl` and `.json`).
 pub fn write_models(root: &Path, models: &ModelLibrary) -> Result<(), SynthError> {
     for m in &models.models {
         write_model_cloud(&root.join("models").join(format!("{}.pcd", m.name)), m)?;
+        write_stl(
+            &root.join("models").join(format!("{}.stl", m.name)),
+            &m.mesh,
+        )?;
         write_json(
             &root.join("models").join(format!("{}.json", m.name)),
             &m.info(),
@@ -558,11 +575,13 @@ y along the scanning motion.
 
 models/<name>.pcd    top view of the part in its canonical resting pose, in the part's frame
                      (noise-free 0.5 x 0.5 mm scan); A-cut / C-cut are crops of A / C
+models/<name>.stl    the exact mesh of what the model shows (binary STL, same frame; A-cut /
+                     C-cut: the cut portion)
 models/<name>.json   {\"diameter\": max point distance, \"symmetries\": [row-major 4x4, ...]}
 scenes/<id>.pcd      one simulated dual-laser scan (binary PCD, x y z float32)
 gt/<id>__<model>.json  every instance of that model's part in the scene: pose (model -> scene,
-                     row-major 4x4), visible_fraction, pickable (visible_fraction >= 0.5);
-                     other parts in the scene are clutter
+                     row-major 4x4), visible_fraction, pickable (visible_fraction >= 0.5),
+                     visible_points, alone_points; other parts in the scene are clutter
 manifest.json        preset, seed, generator version, groups, per-scene part counts, scanner
                      settings and visibility radius
 
@@ -570,7 +589,11 @@ visible_fraction = share of the model's points that, moved by the true pose, hav
 of that same instance (outliers excluded) within the scene's visibility radius
 (max(1.5 mm, sqrt((line/2)^2 + (column/2)^2 + (3 sigma)^2))). For models with symmetries
 (A-cut, C-cut) the best symmetric equivalent counts and its pose is the one listed.
-Instances hidden under others are listed too, with their low visible fraction.
+Instances hidden under others are listed too, with their low visible fraction. A top-view
+model makes a part lying upside down look invisible however plainly it shows; for a model
+with every side (the mesh), BOP's visible fraction visible_points / alone_points counts: the
+scan's points on the instance over the points the same scanner sees of the part alone in the
+same pose (`binpick eval --model-file mesh` judges pickability so).
 ";
 
 #[derive(Serialize)]

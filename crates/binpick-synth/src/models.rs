@@ -15,7 +15,8 @@
 //!   (`pose * S`: the one whose model points face the scanner). A top-view model makes a part
 //!   lying upside down look invisible, which is why the generalisation benchmark uses:
 //! - [`ground_truth_alone`] (BOP's visib_fract): the scene's points on the instance over the
-//!   points the same sensor sees of the part alone in the same pose.
+//!   points the same sensor sees of the part alone in the same pose. The thesis's datasets
+//!   carry those counts too ([`add_alone_counts`]), for a model that has every side.
 
 use std::collections::HashMap;
 
@@ -427,6 +428,30 @@ pub fn alone_visibility(
         .collect()
 }
 
+/// Adds BOP's point counts (`counts`, from [`alone_visibility`] over `instances`) to ground
+/// truth written by [`ground_truth`], whose files list, per model, the instances of that
+/// model's part in scene order. The thesis's visible fraction and pickability stay.
+pub fn add_alone_counts(
+    gt: &mut [GroundTruth],
+    instances: &[Instance],
+    counts: &[(f64, u64, u64)],
+    models: &ModelLibrary,
+) {
+    for file in gt {
+        let Some(model) = models.model(&file.model) else {
+            continue;
+        };
+        let of_part = instances
+            .iter()
+            .zip(counts)
+            .filter(|(inst, _)| inst.kind == model.part);
+        for (g, (_, &(_, seen, alone))) in file.instances.iter_mut().zip(of_part) {
+            g.visible_points = Some(seen);
+            g.alone_points = Some(alone);
+        }
+    }
+}
+
 /// Ground truth with BOP's visible fraction ([`alone_visibility`]): independent of any model
 /// cloud, so a part lying upside down is exactly as visible as the scan shows it. One file
 /// per model in `models` (full models) whose part is in the scene, listing every instance of
@@ -450,8 +475,8 @@ pub fn ground_truth_alone(
             .iter()
             .zip(&vis)
             .filter(|(inst, _)| inst.kind == model.part)
-            .map(|(inst, &(fraction, seen, alone))| {
-                let vf = (fraction * 1e4).round() / 1e4;
+            .map(|(inst, &(_, seen, alone))| {
+                let vf = GtInstance::visib_fract(seen, alone);
                 GtInstance {
                     pose: pose_to_row_major(&inst.pose),
                     visible_fraction: vf,

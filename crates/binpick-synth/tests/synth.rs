@@ -2,7 +2,7 @@
 //! shadows, symmetries, physics and the presets.
 
 // Test helpers outside #[test] functions may fail loudly too.
-#![allow(clippy::unwrap_used, clippy::expect_used)]
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use std::collections::HashMap;
 use std::sync::OnceLock;
@@ -18,7 +18,7 @@ use binpick_synth::rng::Rng;
 use binpick_synth::{
     Environment, Instance, Layout, ModelLibrary, OUTLIER, PartKind, Pile, Preset, Scan,
     ScannerConfig, SceneGeometry, SceneRequest, SynthOptions, generate, make_scene, plan, scan,
-    scan_scene,
+    scan_instances, scan_scene,
 };
 
 fn models() -> &'static ModelLibrary {
@@ -107,6 +107,39 @@ fn model_at_true_pose_lies_on_the_scan_of_a_lone_part() {
         let back = binpick_cloud::pose_from_row_major(&own.instances[0].pose).unwrap();
         assert!((back.to_homogeneous() - pose.to_homogeneous()).norm() < 1e-9);
     }
+}
+
+#[test]
+fn a_part_upside_down_is_invisible_to_the_top_view_model_and_not_to_bop() {
+    let lib = models();
+    let kind = PartKind::A;
+    let right_way_up = shifted(&lib.canonical[kind.index()], 25.0, -15.0, 0.0);
+    // Turned over about x and lifted clear of the belt (no physics here).
+    let over = Isometry3::from_parts(
+        Translation3::new(0.0, 0.0, 60.0),
+        UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI),
+    ) * right_way_up;
+    let judged = |pose: Isometry3<f64>| {
+        let inst = vec![Instance { kind, pose }];
+        let scene = scan_instances(lib, &belt(), inst, &conveyor(200_000), 3, "x").unwrap();
+        let gt = scene.gt.iter().find(|g| g.model == kind.name()).unwrap();
+        let i = gt.instances[0].clone();
+        (
+            i.visible_fraction,
+            i.pickable,
+            i.bop_visible_fraction().unwrap(),
+        )
+    };
+    let (top_view, pickable, bop) = judged(right_way_up);
+    assert!(
+        top_view >= 0.9 && pickable && bop >= 0.9,
+        "{top_view} {bop}"
+    );
+    // The thesis's fraction (the top view's points) is the model's: a top-view model cannot
+    // align this part. BOP's is the scan's: it shows as plainly as the other.
+    let (top_view, pickable, bop) = judged(over);
+    assert!(top_view < 0.3 && !pickable, "top view {top_view}");
+    assert!(bop >= 0.9, "BOP {bop}");
 }
 
 #[test]
@@ -639,6 +672,11 @@ fn tiny_preset_writes_a_valid_reproducible_dataset() {
         let info = ModelInfo::load(&root.join(format!("models/{name}.json"))).unwrap();
         assert!(info.diameter > 50.0 && info.diameter < 200.0, "{name}");
         assert!(pcd_point_count(&root.join(format!("models/{name}.pcd"))) > 2000);
+        let stl = root.join(format!("models/{name}.stl"));
+        let binpick_cloud::io::Model::Mesh(m) = binpick_cloud::io::read_model(&stl).unwrap() else {
+            panic!("{name}: the STL holds no mesh")
+        };
+        assert!(m.mesh.triangles.len() >= 12, "{name}");
     }
     let ds = Dataset::open(root).unwrap();
     assert_eq!(ds.scene_ids.len(), summaries[0].gt_files);
@@ -663,6 +701,11 @@ fn tiny_preset_writes_a_valid_reproducible_dataset() {
                         .iter()
                         .all(|i| i.pickable == (i.visible_fraction >= 0.5))
                 );
+                // BOP's counts beside the thesis's fraction.
+                assert!(gt.instances.iter().all(|i| {
+                    i.bop_visible_fraction()
+                        .is_some_and(|v| (0.0..=1.0).contains(&v))
+                }));
                 if part == "C" {
                     scenes_with_c += 1;
                     let cut = GroundTruth::load(&ds.gt_path(&format!("{id}__C-cut"))).unwrap();
@@ -791,5 +834,5 @@ fn output_folder_must_be_empty_or_an_earlier_dataset() {
     assert_eq!(generate(&fewer, &|_, _| {}).unwrap().scenes, 0);
     assert_eq!(std::fs::read_dir(ds.join("scenes")).unwrap().count(), 0);
     assert_eq!(std::fs::read_dir(ds.join("gt")).unwrap().count(), 0);
-    assert_eq!(std::fs::read_dir(ds.join("models")).unwrap().count(), 10);
+    assert_eq!(std::fs::read_dir(ds.join("models")).unwrap().count(), 15);
 }
