@@ -25,7 +25,7 @@ use binpick_cloud::dataset::{GroundTruth, RevolutionAxis, write_json};
 use crate::depth::DepthCameraConfig;
 use crate::generate::{
     SceneFiles, build_pile_in, io_err, is_empty_or_synth_dir, prepare_out_dir,
-    write_cloud_seen_from, write_ground_truth, write_model_cloud, write_stl,
+    write_cloud_seen_from, write_ground_truth, write_model_files,
 };
 use crate::models::{Model, ModelLibrary, PICKABLE_FRACTION, ground_truth_alone};
 use crate::parts::PartKind;
@@ -690,12 +690,7 @@ fn drop_area(
 /// Writes a set's models: top-view cloud, exact mesh and evaluator info.
 fn write_set_models(root: &Path, models: &[&Model]) -> Result<(), SynthError> {
     let dir = root.join("models");
-    for m in models {
-        write_model_cloud(&dir.join(format!("{}.pcd", m.name)), m)?;
-        write_stl(&dir.join(format!("{}.stl", m.name)), &m.mesh)?;
-        write_json(&dir.join(format!("{}.json", m.name)), &m.info())?;
-    }
-    Ok(())
+    models.iter().try_for_each(|m| write_model_files(&dir, m))
 }
 
 fn summarise(set: &SetSpec, records: &[SceneRecord]) -> SetSummary {

@@ -12,7 +12,7 @@ use binpick_cloud::PointCloud;
 use binpick_cloud::dataset::{GroundTruth, write_json};
 
 use crate::models::{
-    ModelLibrary, PICKABLE_FRACTION, add_alone_counts, alone_visibility, ground_truth,
+    Model, ModelLibrary, PICKABLE_FRACTION, add_alone_counts, alone_visibility, ground_truth,
 };
 use crate::parts::{PartKind, PartLibrary};
 use crate::physics::{Environment, Instance, PhysicsSettings, Pile};
@@ -552,17 +552,19 @@ fn run_job(
 
 /// Writes the models (`models/<name>.pcd`, `.stl` and `.json`).
 pub fn write_models(root: &Path, models: &ModelLibrary) -> Result<(), SynthError> {
-    for m in &models.models {
-        write_model_cloud(&root.join("models").join(format!("{}.pcd", m.name)), m)?;
-        write_stl(
-            &root.join("models").join(format!("{}.stl", m.name)),
-            &m.mesh,
-        )?;
-        write_json(
-            &root.join("models").join(format!("{}.json", m.name)),
-            &m.info(),
-        )?;
-    }
+    let dir = root.join("models");
+    models
+        .models
+        .iter()
+        .try_for_each(|m| write_model_files(&dir, m))
+}
+
+/// Writes one model into `dir`: its top-view cloud (`<name>.pcd`), exact mesh (`.stl`) and
+/// evaluator info (`.json`).
+pub(crate) fn write_model_files(dir: &Path, m: &Model) -> Result<(), SynthError> {
+    write_model_cloud(&dir.join(format!("{}.pcd", m.name)), m)?;
+    write_stl(&dir.join(format!("{}.stl", m.name)), &m.mesh)?;
+    write_json(&dir.join(format!("{}.json", m.name)), &m.info())?;
     Ok(())
 }
 
