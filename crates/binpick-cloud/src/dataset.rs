@@ -80,15 +80,24 @@ pub struct GtInstance {
 }
 
 impl GtInstance {
-    /// BOP's visib_fract from point counts: `visible / alone`, capped at 1, 0 when the part
-    /// alone gives no point, rounded to 4 decimals as the generators write it.
-    pub fn visib_fract(visible: u64, alone: u64) -> f64 {
-        let fraction = if alone == 0 {
+    /// The share `visible / alone`, capped at 1, 0 when the part alone gives no point
+    /// (unrounded).
+    pub fn share_seen(visible: u64, alone: u64) -> f64 {
+        if alone == 0 {
             0.0
         } else {
             (visible as f64 / alone as f64).min(1.0)
-        };
+        }
+    }
+
+    /// A visible fraction as the generators write it: rounded to 4 decimals.
+    pub fn round_fraction(fraction: f64) -> f64 {
         (fraction * 1e4).round() / 1e4
+    }
+
+    /// BOP's visib_fract from point counts, as written ([`Self::share_seen`], rounded).
+    pub fn visib_fract(visible: u64, alone: u64) -> f64 {
+        Self::round_fraction(Self::share_seen(visible, alone))
     }
 
     /// BOP's visible fraction of this instance when the generator counted its points (None

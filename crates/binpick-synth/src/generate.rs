@@ -11,9 +11,7 @@ use serde::Serialize;
 use binpick_cloud::PointCloud;
 use binpick_cloud::dataset::{GroundTruth, write_json};
 
-use crate::models::{
-    Model, ModelLibrary, PICKABLE_FRACTION, add_alone_counts, alone_visibility, ground_truth,
-};
+use crate::models::{Model, ModelLibrary, PICKABLE_FRACTION, alone_visibility, ground_truth};
 use crate::parts::{PartKind, PartLibrary};
 use crate::physics::{Environment, Instance, PhysicsSettings, Pile};
 use crate::plan::{GroupPlan, Layout, Preset, Recipe, draw_kinds, plan};
@@ -88,13 +86,6 @@ pub fn scan_instances(
     let geom = SceneGeometry::from_scene(environment, &instances, &models.parts)?;
     let s = scan(&geom, scanner, seed);
     let radius = visibility_radius(scanner);
-    let mut gt = ground_truth(
-        &format!("scenes/{scene_id}.pcd"),
-        &instances,
-        &s,
-        models,
-        radius,
-    )?;
     // BOP's counts beside the thesis's fraction: the scan's sample positions and random
     // streams (`seed`), the part alone.
     let counts = alone_visibility(
@@ -104,7 +95,14 @@ pub fn scan_instances(
         seed,
         &models.parts,
     )?;
-    add_alone_counts(&mut gt, &instances, &counts, models);
+    let gt = ground_truth(
+        &format!("scenes/{scene_id}.pcd"),
+        &instances,
+        &s,
+        models,
+        radius,
+        Some(&counts),
+    )?;
     Ok(SynthScene {
         environment: environment.clone(),
         instances,

@@ -16,7 +16,7 @@
 //!   lying upside down look invisible, which is why the generalisation benchmark uses:
 //! - [`ground_truth_alone`] (BOP's visib_fract): the scene's points on the instance over the
 //!   points the same sensor sees of the part alone in the same pose. The thesis's datasets
-//!   carry those counts too ([`add_alone_counts`]), for a model that has every side.
+//!   carry those counts too ([`ground_truth`]'s `counts`), for a model that has every side.
 
 use std::collections::HashMap;
 
@@ -340,13 +340,15 @@ pub fn instance_visibility(
 
 /// Ground-truth files for one scanned scene: one per model relevant to the part kinds present
 /// (see [`PartKind::gt_models`]), in [`MODEL_NAMES`] order, listing every instance of that
-/// part (buried ones too, with their low visible fraction).
+/// part (buried ones too, with their low visible fraction). `counts`, when given, are BOP's
+/// point counts per instance ([`alone_visibility`]), written beside the thesis's fraction.
 pub fn ground_truth(
     scene_path: &str,
     instances: &[Instance],
     scan: &Scan,
     models: &ModelLibrary,
     radius: f64,
+    counts: Option<&[(f64, u64, u64)]>,
 ) -> Result<Vec<GroundTruth>, SynthError> {
     let index = ScanIndex::new(scan, radius);
     let mut out = Vec::new();
@@ -365,13 +367,14 @@ pub fn ground_truth(
                 continue;
             }
             let (vf, pose) = instance_visibility(&index, model, &inst.pose, k as u32, radius);
-            let vf = (vf * 1e4).round() / 1e4;
+            let vf = GtInstance::round_fraction(vf);
+            let count = counts.and_then(|c| c.get(k));
             gt_instances.push(GtInstance {
                 pose: pose_to_row_major(&pose),
                 visible_fraction: vf,
                 pickable: vf >= PICKABLE_FRACTION,
-                visible_points: None,
-                alone_points: None,
+                visible_points: count.map(|c| c.1),
+                alone_points: count.map(|c| c.2),
             });
         }
         out.push(GroundTruth {
@@ -418,38 +421,9 @@ pub fn alone_visibility(
         .map(|(inst, seen)| {
             let alone = sensor.scan_alone(&parts.get(inst.kind).mesh, &inst.pose, seed)?;
             let alone = alone.labels.iter().filter(|&&l| l == 0).count() as u64;
-            let fraction = if alone == 0 {
-                0.0
-            } else {
-                (seen as f64 / alone as f64).min(1.0)
-            };
-            Ok((fraction, seen, alone))
+            Ok((GtInstance::share_seen(seen, alone), seen, alone))
         })
         .collect()
-}
-
-/// Adds BOP's point counts (`counts`, from [`alone_visibility`] over `instances`) to ground
-/// truth written by [`ground_truth`], whose files list, per model, the instances of that
-/// model's part in scene order. The thesis's visible fraction and pickability stay.
-pub fn add_alone_counts(
-    gt: &mut [GroundTruth],
-    instances: &[Instance],
-    counts: &[(f64, u64, u64)],
-    models: &ModelLibrary,
-) {
-    for file in gt {
-        let Some(model) = models.model(&file.model) else {
-            continue;
-        };
-        let of_part = instances
-            .iter()
-            .zip(counts)
-            .filter(|(inst, _)| inst.kind == model.part);
-        for (g, (_, &(_, seen, alone))) in file.instances.iter_mut().zip(of_part) {
-            g.visible_points = Some(seen);
-            g.alone_points = Some(alone);
-        }
-    }
 }
 
 /// Ground truth with BOP's visible fraction ([`alone_visibility`]): independent of any model

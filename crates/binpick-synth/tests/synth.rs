@@ -98,7 +98,7 @@ fn model_at_true_pose_lies_on_the_scan_of_a_lone_part() {
             "{kind}: only {within:.3} of model points on the scan"
         );
         assert!(mean < 0.5, "{kind}: mean distance {mean:.3} mm");
-        let gt = ground_truth("scenes/x.pcd", &inst, &s, lib, 1.5).unwrap();
+        let gt = ground_truth("scenes/x.pcd", &inst, &s, lib, 1.5, None).unwrap();
         let own = gt.iter().find(|g| g.model == kind.name()).unwrap();
         assert_eq!(own.instances.len(), 1);
         let vf = own.instances[0].visible_fraction;
@@ -208,7 +208,7 @@ fn partly_covered_part_is_less_visible_than_alone() {
     let cfg = conveyor(150_000);
     let vf = |inst: &[Instance]| {
         let s = scan_scene(&belt(), inst, &lib.parts, &cfg, 9).unwrap();
-        let gt = ground_truth("scenes/x.pcd", inst, &s, lib, 1.5).unwrap();
+        let gt = ground_truth("scenes/x.pcd", inst, &s, lib, 1.5, None).unwrap();
         gt.iter()
             .find(|g| g.model == "A")
             .unwrap()
@@ -236,7 +236,7 @@ fn partly_covered_part_is_less_visible_than_alone() {
         },
     ];
     let s = scan_scene(&belt(), &nested, &lib.parts, &cfg, 9).unwrap();
-    let gt = ground_truth("scenes/x.pcd", &nested, &s, lib, 1.5).unwrap();
+    let gt = ground_truth("scenes/x.pcd", &nested, &s, lib, 1.5, None).unwrap();
     let vfs: Vec<f64> = gt[0].instances.iter().map(|i| i.visible_fraction).collect();
     assert!(vfs[0] < 0.1 && vfs[1] > 0.9, "{vfs:?}");
 }
