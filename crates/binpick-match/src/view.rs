@@ -276,8 +276,13 @@ impl ViewConfig {
 /// A hypothesis judged against the view, in grid cells.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ViewScore {
-    /// Cells the model covers as the sensor would see it alone in this pose.
+    /// Cells the model covers as the sensor would see it alone in this pose, within the
+    /// scan's footprint (the grid over everything the sensor measured).
     pub visible: u32,
+    /// Cells it would cover beyond the footprint: a part crossing the edge of the scanned
+    /// area. Counted in no other field: where the sensor measured nothing, a surface
+    /// neither confirms nor contradicts the pose.
+    pub outside: u32,
     /// Cells where the scene surface agrees with the model.
     pub explained: u32,
     /// Cells where the scene surface lies in front of the model (hidden by something).
@@ -636,6 +641,7 @@ impl RangeGrid {
         mut facing: Option<&mut Vec<FacingPoint>>,
     ) -> Rendering {
         let mut cells: Vec<RenderedCell> = Vec::with_capacity(model.len());
+        let mut outside: Vec<(i64, i64)> = Vec::new();
         // A point whose normal faces away from the sensor by a clear margin, measured in the
         // model's frame, is skipped before it is moved (moving a point and its normal is most
         // of the cost, and about half of a part's surface faces away). The exact test below
@@ -662,6 +668,14 @@ impl RangeGrid {
                 continue;
             };
             let (col, row) = (u.floor() as i64, v.floor() as i64);
+            // Beyond the scan's footprint the sensor measured nothing, so it says nothing
+            // there: neither missing surface nor points to align.
+            if self.cell_index(col, row).is_none() {
+                if cos >= max_incidence_cos {
+                    outside.push((col, row));
+                }
+                continue;
+            }
             if let (true, Some(f)) = (listed, facing.as_deref_mut()) {
                 f.push(FacingPoint {
                     index: i as u32,
@@ -684,7 +698,12 @@ impl RangeGrid {
                 normal,
             });
         }
-        Rendering::nearest_per_cell(&cells)
+        outside.sort_unstable();
+        outside.dedup();
+        Rendering {
+            outside: outside.len() as u32,
+            ..Rendering::nearest_per_cell(&cells)
+        }
     }
 
     /// Whether the scene's normal in cell `k` agrees with `normal` (true where unknown).
@@ -708,6 +727,7 @@ impl RangeGrid {
         let rendered = self.render(model, pose, cos_limit, None);
         let mut s = ViewScore {
             visible: rendered.cells.len() as u32,
+            outside: rendered.outside,
             ..ViewScore::default()
         };
         let tol = self.tolerance_mm;
@@ -821,7 +841,6 @@ impl RangeGrid {
                 if !rendered.is_edge(cell.col, cell.row, dc, dr) {
                     continue;
                 }
-                s.outline_edges += 1;
                 let t = tol + cell.slack;
                 // Checked beyond the gap: the sampled outline lies up to a cell inside the
                 // part's true edge, and ICP leaves a cell of slack. Only measured cells
@@ -829,6 +848,11 @@ impl RangeGrid {
                 // the scan's holes there would make its outline look continued.
                 let beyond = [OUTLINE_GAP + 1, OUTLINE_GAP + 2]
                     .map(|k| self.cell_index(cell.col + k * dc, cell.row + k * dr));
+                // Beside the scan's edge the outline cannot show.
+                if beyond.iter().any(Option::is_none) {
+                    continue;
+                }
+                s.outline_edges += 1;
                 let carries = beyond.iter().all(|i| {
                     i.is_some_and(|i| {
                         !self.background[i]
@@ -937,6 +961,8 @@ struct FacingPoint {
 /// the visibility of each model point look cells up by position).
 struct Rendering {
     cells: Vec<RenderedCell>,
+    /// Cells the model would show beyond the scan's footprint (not in `cells`).
+    outside: u32,
     col0: i64,
     row0: i64,
     cols: i64,
@@ -963,6 +989,7 @@ impl Rendering {
         let Some((col0, col1, row0, row1)) = bounds else {
             return Self {
                 cells: Vec::new(),
+                outside: 0,
                 col0: 0,
                 row0: 0,
                 cols: 0,
@@ -985,6 +1012,7 @@ impl Rendering {
         }
         Self {
             cells,
+            outside: 0,
             col0,
             row0,
             cols,
@@ -1312,8 +1340,10 @@ pub(crate) mod tests {
 
     #[test]
     fn model_points_where_the_sensor_measured_nothing_around_are_left_out() {
-        // The scan of a 40 x 40 mm tile stops at row 30 (the rest in a shadow).
-        let scene = rows(0.0, 0..30);
+        // The scan of a 40 x 40 mm tile stops at row 30 (the rest in a shadow); a point of
+        // the floor far beyond keeps the tile inside the scanned area.
+        let mut scene = rows(0.0, 0..30);
+        scene.push([0.5, 60.5, -20.0]);
         let (grid, view) = top_view_grid(&scene, &vec![false; scene.len()]);
         let tile = OrientedPoints {
             points: rows(0.0, 0..40),
@@ -1335,6 +1365,46 @@ pub(crate) mod tests {
             31 * 40,
             "the row beside the scan's edge kept"
         );
+    }
+
+    #[test]
+    fn a_part_crossing_the_edge_of_the_scan_is_judged_on_the_scanned_area_only() {
+        // A 40 x 40 mm tile, scanned up to row 20, where the scan ends.
+        let tile = OrientedPoints {
+            points: rows(0.0, 0..40),
+            normals: vec![[0.0, 0.0, 1.0]; 40 * 40],
+        };
+        let pose = Isometry3::identity();
+        // A floor 20 mm below on either side (x -10..0 and 40..50).
+        let mut scene = rows(0.0, 0..20);
+        let mut floor = vec![false; scene.len()];
+        for y in 0..20 {
+            for x in (-10..0).chain(40..50) {
+                scene.push([x as f32 + 0.5, y as f32 + 0.5, -20.0]);
+                floor.push(true);
+            }
+        }
+        let (grid, view) = top_view_grid(&scene, &floor);
+        let s = grid.score(&tile, &pose, &view);
+        assert_eq!((s.visible, s.outside), (800, 800), "half beyond the scan");
+        assert_eq!((s.explained, s.missing), (800, 0));
+        assert_eq!(s.visibility(), 1.0);
+        // Its outline is the two sides over the floor; none where the scan ends.
+        assert_eq!((s.outline_edges, s.outline_continued), (2 * 20, 0));
+        assert_eq!(
+            grid.visible_model_points(&tile, &pose, &view).len(),
+            800,
+            "only the scanned half is aligned"
+        );
+        // The same tile with the scan's edge far off: its other half is in a shadow.
+        scene.push([0.5, 60.5, -20.0]);
+        floor.push(true);
+        let (grid, view) = top_view_grid(&scene, &floor);
+        let s = grid.score(&tile, &pose, &view);
+        assert_eq!(s.outside, 0);
+        assert_eq!(s.visible, 1600);
+        assert!(s.missing >= 760, "{} missing", s.missing);
+        assert!(s.visibility() < 0.55);
     }
 
     #[test]

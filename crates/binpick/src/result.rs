@@ -172,6 +172,13 @@ pub struct ViewCheck {
     /// (what `max_crossing` limits, once there are three). Absent in older results: 0.
     #[serde(default)]
     pub crossing: f64,
+    /// Share of the part's view beyond the edge of the scanned area (of the cells it would
+    /// show in and beyond the scan; the other shares are of those in it): the sensor
+    /// measured nothing there, so nothing there confirms or contradicts the pose, and what
+    /// may lie on that share is unknown. Above `covered_max` the part is not free to pick.
+    /// Absent in older results: 0.
+    #[serde(default)]
+    pub outside: f64,
 }
 
 impl ViewCheck {

@@ -318,7 +318,9 @@ stage_config! {
         /// covered by something other than the belt or bin is not free to pick: it ranks
         /// after the free ones, and with no free part there is no first pick. A neighbour's
         /// edge resting on a part covers a few percent of it (right plates and
-        /// rods at 3.2-4.3 % lost the first pick to wrong free poses at 3 %).
+        /// rods at 3.2-4.3 % lost the first pick to wrong free poses at 3 %). The same
+        /// limit holds for the share of its view beyond the edge of the scanned area, where
+        /// what lies on it is unknown.
         covered_max: f64 = 0.05, within(0.0, 1.0, "");
         /// Scene-voting engine: a part that made a repeat of another part's closer-fitting
         /// pose, claiming more than this share of that pose's confirmed surface, is not free

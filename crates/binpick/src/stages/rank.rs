@@ -134,7 +134,8 @@ pub(crate) fn rank_detections(detections: &mut [Detection], band: f64) {
 
 /// The scene-voting engine's pick order (thesis 4.2.2's occlusion band, extended with the
 /// view): parts nothing lies on come first (covered share of their visible surface, off the
-/// outline, at most `covered_max`); then higher confidence ([`ViewCheck::pick_confidence`]: the visible share
+/// outline, at most `covered_max`, and as little of their view beyond the edge of the scan,
+/// where the sensor cannot tell); then higher confidence ([`ViewCheck::pick_confidence`]: the visible share
 /// confirmed by scene surface other than the support, since belt, floor and walls confirm a
 /// pose whether or not a part is there, weighted by how closely that surface fits, less
 /// `free_space_weight` times the share the sensor saw through), compared in bands of
@@ -158,7 +159,9 @@ pub(crate) fn rank_by_view(
             covered: 1.0,
             ..ViewCheck::default()
         });
-        let free = v.covered <= cfg.covered_max && v.contested <= cfg.contested_max;
+        let free = v.covered <= cfg.covered_max
+            && v.contested <= cfg.contested_max
+            && v.outside <= cfg.covered_max;
         let broad = f64::from(v.visible_cells) >= edge_on_cells;
         let vis_band = if band > 0.0 {
             (v.pick_confidence(free_space_weight) / band).floor() as i64
@@ -193,6 +196,9 @@ pub(crate) fn rank_by_view(
                 ", {:.0} % of a closer-fitting pose of another part claimed",
                 100.0 * v.contested
             );
+        }
+        if v.outside > 0.0 {
+            covered += &format!(", {:.1} % beyond the edge of the scan", 100.0 * v.outside);
         }
         let edge_on = if broad {
             String::new()
@@ -479,6 +485,24 @@ mod tests {
         };
         rank_by_view(&mut alone, &loose, 2.0, 0.0);
         assert!(alone[0].free_to_pick);
+    }
+
+    #[test]
+    fn a_part_reaching_beyond_the_scan_is_not_free_to_pick() {
+        // A part half beyond the edge of the scanned area, nothing over its scanned half:
+        // what lies on the rest is unknown. Behind a free part it ranks second.
+        let beyond = |h| with_view(seen(h, 1.0, 0.0, 0.0, 30.0), |v| v.outside = 0.5);
+        let (_, alone) = never_free(beyond, seen(1, 0.6, 0.0, 0.0, 5.0));
+        assert_reason(
+            &alone[0],
+            "not free (0.0 % of its visible surface covered, 50.0 % beyond the edge of the scan)",
+        );
+        // A sliver beyond the edge, within `covered_max`, leaves it free.
+        let mut sliver = vec![with_view(seen(0, 1.0, 0.0, 0.0, 30.0), |v| {
+            v.outside = 0.04
+        })];
+        rank_by_view(&mut sliver, &RankingConfig::default(), 2.0, 0.0);
+        assert!(sliver[0].free_to_pick, "{}", sliver[0].rank_reason);
     }
 
     #[test]
