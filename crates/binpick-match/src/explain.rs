@@ -65,7 +65,8 @@ pub struct ExplainConfig {
     pub occluded_min_fit: f64,
     /// See `occluded_min_fit`. Range 0-1.
     pub occluded_below_visibility: f64,
-    /// A pose showing at most this many view cells is seen edge on (0 = none is). Range >= 0.
+    /// A pose showing at most this many view cells, in and beyond the scan, is seen edge on
+    /// (0 = none is). Range >= 0.
     pub edge_on_cells: f64,
     /// The mean fit asked of a pose seen edge on, in place of `fit_needed`'s: a sheet's edge
     /// is a strip a few cells wide, all outline, where the scan's edge falls beside the
@@ -184,9 +185,10 @@ impl ExplainConfig {
     }
 
     /// The mean fit asked of `s`: `edge_on_min_fit` when it shows an edge
-    /// (`edge_on_cells`), else [`Self::fit_needed`] at its visibility.
+    /// (`edge_on_cells`, counted in and beyond the scan: [`ViewScore::view_cells`]), else
+    /// [`Self::fit_needed`] at its visibility.
     pub fn fit_needed_by(&self, s: &ViewScore) -> f64 {
-        if f64::from(s.visible) <= self.edge_on_cells {
+        if f64::from(s.view_cells()) <= self.edge_on_cells {
             self.edge_on_min_fit
         } else {
             self.fit_needed(s.visibility())
@@ -681,6 +683,13 @@ mod tests {
         assert_eq!(config.rejection(&broad), Some(Rejection::PoorFit));
         let looser = explaining(0..50, 0.55, 50);
         assert_eq!(config.rejection(&looser), Some(Rejection::PoorFit));
+        // A broad side cut to 50 cells by the edge of the scan is no edge.
+        let cut = ViewScore {
+            outside: 20,
+            ..edge.clone()
+        };
+        assert_eq!(cut.view_cells(), 70);
+        assert_eq!(config.rejection(&cut), Some(Rejection::PoorFit));
         // Off (no pose is an edge): the edge is asked `min_fit`.
         let off = ExplainConfig {
             edge_on_cells: 0.0,

@@ -352,6 +352,13 @@ impl ViewScore {
         self.fit - free_space_weight * f64::from(self.free_space)
     }
 
+    /// Cells the pose shows the sensor in and beyond the scan: how broad a side it turns to
+    /// the sensor, whatever the scan's edge cuts off (a part on the edge of its sheet shows
+    /// few, a part half beyond the scan's end does not).
+    pub fn view_cells(&self) -> u32 {
+        self.visible + self.outside
+    }
+
     /// Share of the visible surface the scene confirms: an estimate of the part's visible
     /// fraction (BOP's visib_fract) when the pose is right.
     pub fn visibility(&self) -> f64 {

@@ -673,7 +673,7 @@ impl SceneVoting<'_> {
             // right pose lost to its turn).
             .filter(|&(_, &i)| {
                 self.part.source == PartSource::Mesh
-                    || f64::from(candidates[i].score.visible) > edge_on
+                    || f64::from(candidates[i].score.view_cells()) > edge_on
             })
             .map(|(t, &i)| {
                 let r = (0..candidates.len())
@@ -718,7 +718,7 @@ impl SceneVoting<'_> {
                 // A part seen edge on is a strip whose ends are all outline: its seen points
                 // where it and its turn differ are too few or fall beside the scan's edge
                 // (`edge_on_min_fit`), so the scan's points there judge it.
-                if f64::from(candidates[i].score.visible) <= edge_on {
+                if f64::from(candidates[i].score.view_cells()) <= edge_on {
                     for &j in rivals {
                         let (si, sj, n) = verifier.scan_residuals(
                             (seen_of(i), &candidates[i].pose),

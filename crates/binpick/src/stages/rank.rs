@@ -366,10 +366,30 @@ mod tests {
         let mut d = vec![part(0), other];
         assert_first(&mut d, &RankingConfig::default(), 0.0, 1);
         assert!(d[0].free_to_pick && !d[1].free_to_pick);
-        let mut alone = vec![part(0)];
-        rank_by_view(&mut alone, &RankingConfig::default(), 2.0, 0.0);
+        let alone = vec![ranked_alone(part(0))];
         assert_eq!(crate::result::first_pick(&alone), None);
         (d, alone)
+    }
+
+    /// [`never_free`] for `part(h, over)`, a part over a bound, and checks that the same part
+    /// at `under` the bound, alone, is free to pick.
+    fn over_the_bound(
+        part: impl Fn(usize, f64) -> Detection,
+        over: f64,
+        under: f64,
+        other: Detection,
+    ) -> (Vec<Detection>, Vec<Detection>) {
+        let ranked = never_free(|h| part(h, over), other);
+        let free = ranked_alone(part(0, under));
+        assert!(free.free_to_pick, "{}", free.rank_reason);
+        ranked
+    }
+
+    /// `d` ranked on its own with the default ranking.
+    fn ranked_alone(d: Detection) -> Detection {
+        let mut alone = vec![d];
+        rank_by_view(&mut alone, &RankingConfig::default(), 2.0, 0.0);
+        alone.remove(0)
     }
 
     /// Asserts that a rank's reason says `text`.
@@ -455,18 +475,13 @@ mod tests {
         // Measured on brackets-bin-2mm-002 (seed 16): a pose lifted 3 mm onto the flange of a
         // bracket lying on it claimed 69 % of that bracket's closer-fitting pose, nothing lay
         // on it, and it was the first pick; its part is 43 % visible.
-        let contested = |h| with_view(seen(h, 0.98, 0.0, 0.0, 40.6), |v| v.contested = 0.69);
-        let (d, _) = never_free(contested, seen(1, 0.9, 0.0, 0.0, 17.4));
+        // Under the bound (claiming half) it is free.
+        let contested = |h, c| with_view(seen(h, 0.98, 0.0, 0.0, 40.6), |v| v.contested = c);
+        let (d, _) = over_the_bound(contested, 0.69, 0.5, seen(1, 0.9, 0.0, 0.0, 17.4));
         assert_reason(
             &d[1],
             "69 % of a closer-fitting pose of another part claimed",
         );
-        // Under the bound it is free.
-        let mut below = vec![with_view(seen(0, 0.98, 0.0, 0.0, 40.6), |v| {
-            v.contested = 0.5
-        })];
-        rank_by_view(&mut below, &RankingConfig::default(), 2.0, 0.0);
-        assert!(below[0].free_to_pick, "{}", below[0].rank_reason);
     }
 
     #[test]
@@ -491,18 +506,13 @@ mod tests {
     fn a_part_reaching_beyond_the_scan_is_not_free_to_pick() {
         // A part half beyond the edge of the scanned area, nothing over its scanned half:
         // what lies on the rest is unknown. Behind a free part it ranks second.
-        let beyond = |h| with_view(seen(h, 1.0, 0.0, 0.0, 30.0), |v| v.outside = 0.5);
-        let (_, alone) = never_free(beyond, seen(1, 0.6, 0.0, 0.0, 5.0));
+        // A sliver beyond the edge (4 %, within `covered_max`) leaves it free.
+        let beyond = |h, o| with_view(seen(h, 1.0, 0.0, 0.0, 30.0), |v| v.outside = o);
+        let (_, alone) = over_the_bound(beyond, 0.5, 0.04, seen(1, 0.6, 0.0, 0.0, 5.0));
         assert_reason(
             &alone[0],
             "not free (0.0 % of its visible surface covered, 50.0 % beyond the edge of the scan)",
         );
-        // A sliver beyond the edge, within `covered_max`, leaves it free.
-        let mut sliver = vec![with_view(seen(0, 1.0, 0.0, 0.0, 30.0), |v| {
-            v.outside = 0.04
-        })];
-        rank_by_view(&mut sliver, &RankingConfig::default(), 2.0, 0.0);
-        assert!(sliver[0].free_to_pick, "{}", sliver[0].rank_reason);
     }
 
     #[test]

@@ -394,7 +394,7 @@ impl<'a> Verifier<'a> {
     /// part without rims.
     pub(crate) fn edge_on_a_surface(&self, pose: &Isometry3<f64>, score: &ViewScore) -> bool {
         if self.model.rims.is_none()
-            || f64::from(score.visible) > edge_on_cells(self.scale)
+            || f64::from(score.view_cells()) > edge_on_cells(self.scale)
             || f64::from(score.outline_continued)
                 <= self.cfg.max_continued * f64::from(score.outline_edges)
         {
