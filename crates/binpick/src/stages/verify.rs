@@ -848,7 +848,7 @@ pub(crate) fn view_check(s: &ViewScore) -> ViewCheck {
         on_support: s.support_explained_ratio(),
         contested: 0.0,
         crossing: s.crossing_per_explained(),
-        outside: f64::from(s.outside) / f64::from((s.visible + s.outside).max(1)),
+        outside: f64::from(s.outside) / f64::from(s.view_cells().max(1)),
     }
 }
 
