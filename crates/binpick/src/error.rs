@@ -114,6 +114,16 @@ pub(crate) fn pcl(stage: &'static str) -> impl Fn(binpick_pcl::Error) -> Error {
     }
 }
 
+/// Maps an error of the matching crate to this stage: degenerate input (too few points,
+/// no surface to match).
+pub(crate) fn matching(stage: &'static str) -> impl Fn(binpick_match::MatchError) -> Error {
+    move |e| Error::Input {
+        what: stage,
+        kind: InputKind::Degenerate,
+        message: e.to_string(),
+    }
+}
+
 /// An [`Error::Input`] about `what` of kind [`InputKind::Invalid`].
 pub fn input(what: &'static str, message: impl Into<String>) -> Error {
     input_as(what, InputKind::Invalid, message)

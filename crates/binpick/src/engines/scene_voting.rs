@@ -28,14 +28,14 @@ use binpick_match::{
 };
 
 use crate::deadline::{Deadline, ms};
-use crate::error::Result;
+use crate::error::{Result, matching};
 use crate::params::Params;
 use crate::result::{
     CandidateRecord, DerivedScale, Detection, FoundBy, IcpReport, PoseCheck, RefusedCandidate,
     VotingReport,
 };
 use crate::stages::hypotheses::{
-    Voted, VotingModel, matching, scene_normals, scene_rims, scene_samples, view_normals, vote,
+    Voted, VotingModel, scene_normals, scene_rims, scene_samples, view_normals, vote,
 };
 use crate::stages::part::{Part, PartSource};
 use crate::stages::rank::height_mm;

@@ -12,21 +12,12 @@ use binpick_match::{
 };
 use binpick_pcl::IcpParams;
 
-use crate::error::{Error, Result, pcl};
+use crate::error::{Error, Result, matching, pcl};
 use crate::params::VotingConfig;
 use crate::result::DerivedScale;
 use crate::stages::model::{near_symmetries, scan_cannot_tell_turns, self_matching_turns};
 use crate::stages::part::{Part, PartSource};
 use crate::stages::preprocess::plane_distance_mm;
-
-/// Errors of the matching crate, attributed to a stage.
-pub(crate) fn matching(stage: &'static str) -> impl Fn(binpick_match::MatchError) -> Error {
-    move |e| Error::Input {
-        what: stage,
-        kind: crate::error::InputKind::Degenerate,
-        message: e.to_string(),
-    }
-}
 
 /// Model points a near-symmetry is judged on.
 const SYMMETRY_SAMPLE_POINTS: usize = 600;

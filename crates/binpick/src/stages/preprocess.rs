@@ -624,7 +624,7 @@ pub(crate) fn label_support_noise(
     }
     let rest_points: Vec<Point> = rest.iter().map(|&i| points[i as usize]).collect();
     let index = binpick_match::PointIndex::new("scene", &rest_points)
-        .map_err(crate::stages::hypotheses::matching("support noise"))?;
+        .map_err(crate::error::matching("support noise"))?;
     let alone: Vec<bool> = in_band
         .par_iter()
         .map_init(Vec::new, |near, &i| {

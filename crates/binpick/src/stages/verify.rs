@@ -10,10 +10,11 @@ use binpick_cloud::{Point, to_point3, transform_point};
 use binpick_match::{OrientedPoints, RangeGrid, Sensor, ViewConfig, ViewScore};
 use binpick_pcl::{IcpParams, IndexedCloud};
 
+use crate::error::matching;
 use crate::error::{Result, input, pcl};
 use crate::params::{SensorConfig, VerifyConfig};
 use crate::result::{DerivedScale, ViewCheck};
-use crate::stages::hypotheses::{VotingModel, is_ribbon, matching};
+use crate::stages::hypotheses::{VotingModel, is_ribbon};
 use crate::validate::{NearestIndex, euclidean_score, outlier_percent};
 
 /// A camera is assumed at the origin when the scene's centre lies this many scene extents
