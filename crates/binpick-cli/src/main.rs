@@ -10,6 +10,7 @@
 #![allow(rustdoc::invalid_html_tags)]
 
 mod bench;
+mod check;
 mod config;
 mod eval;
 mod inspect;
@@ -72,6 +73,10 @@ enum Command {
     Eval(eval::Args),
     /// Run recognition over recorded scans without ground truth.
     Replay(replay::Args),
+    /// Judge given poses against a scene as the scene-voting engine judges its hypotheses
+    /// (a taught pose, another tool's, a part `recognize` did not report): why it would be
+    /// refused.
+    Check(check::Args),
     /// Time each stage over repeated runs (medians per scene).
     Bench(bench::Args),
     /// Generate a thesis-like dataset with ground truth (physics piles, simulated scanner).
@@ -90,6 +95,7 @@ fn main() -> ExitCode {
         Command::Recognize(a) => recognize::run(a),
         Command::Eval(a) => complete(eval::run(a)),
         Command::Replay(a) => replay::run(a),
+        Command::Check(a) => complete(check::run(a)),
         Command::Bench(a) => complete(bench::run(a)),
         Command::Synth(a) => complete(synth::run(a)),
         Command::Show(a) => complete(show::run(a)),
