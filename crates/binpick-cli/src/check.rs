@@ -11,7 +11,7 @@ use nalgebra::Isometry3;
 use serde::Serialize;
 
 use crate::config::{ParamArgs, load_part, load_scene, write_json};
-use crate::table::rpy_deg;
+use crate::table::{POSE_HEADER, pose_cells};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -250,35 +250,17 @@ fn print_checks(
         .max(4);
     writeln!(
         out,
-        "{:<w$}  {:>9} {:>9} {:>9}  {:>7} {:>7} {:>7}  {:>6}  {:>5}  {:>7}  {:>9}  {:>6}  verdict",
-        "pose",
-        "x mm",
-        "y mm",
-        "z mm",
-        "roll",
-        "pitch",
-        "yaw",
-        "vis %",
-        "fit",
-        "cover %",
-        "through %",
-        "cells"
+        "{:<w$}  {POSE_HEADER}  {:>6}  {:>5}  {:>7}  {:>9}  {:>6}  verdict",
+        "pose", "vis %", "fit", "cover %", "through %", "cells"
     )?;
     for (g, c) in given.iter().zip(checks) {
-        let t = c.pose.translation.vector;
-        let [ro, pi, ya] = rpy_deg(&c.pose);
         let v = &c.view;
         let verdict = c.refusal.as_deref().unwrap_or("accepted");
         writeln!(
             out,
-            "{:<w$}  {:>9.2} {:>9.2} {:>9.2}  {:>7.1} {:>7.1} {:>7.1}  {:>6.1}  {:>5.2}  {:>7.1}  {:>9.1}  {:>6}  {verdict}",
+            "{:<w$}  {}  {:>6.1}  {:>5.2}  {:>7.1}  {:>9.1}  {:>6}  {verdict}",
             g.source,
-            t.x,
-            t.y,
-            t.z,
-            ro,
-            pi,
-            ya,
+            pose_cells(&c.pose),
             100.0 * v.visibility,
             v.fit,
             100.0 * v.covered,

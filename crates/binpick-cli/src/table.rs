@@ -32,26 +32,27 @@ pub fn rpy_deg(p: &nalgebra::Isometry3<f64>) -> [f64; 3] {
     [r.to_degrees(), pi.to_degrees(), y.to_degrees()]
 }
 
+/// The pose columns' header: position (mm) and roll, pitch, yaw (deg), as [`pose_cells`].
+pub const POSE_HEADER: &str = "     x mm      y mm      z mm     roll   pitch     yaw";
+
+/// A pose's columns under [`POSE_HEADER`].
+pub fn pose_cells(p: &nalgebra::Isometry3<f64>) -> String {
+    let t = p.translation.vector;
+    let [ro, pi, ya] = rpy_deg(p);
+    format!(
+        "{:>9.2} {:>9.2} {:>9.2}  {:>7.1} {:>7.1} {:>7.1}",
+        t.x, t.y, t.z, ro, pi, ya
+    )
+}
+
 /// Prints the ranked table to `out`; columns in [`COLUMNS_HELP`].
 pub fn print_ranked(out: &mut impl std::io::Write, r: &Recognition) -> std::io::Result<()> {
     writeln!(
         out,
-        "{:>4}  {:>6}  {:>8}  {:>10}  {:>9} {:>9} {:>9}  {:>7} {:>7} {:>7}  {:<22}  why",
-        "rank",
-        "vis %",
-        "final %",
-        "init mm^2",
-        "x mm",
-        "y mm",
-        "z mm",
-        "roll",
-        "pitch",
-        "yaw",
-        "found by"
+        "{:>4}  {:>6}  {:>8}  {:>10}  {POSE_HEADER}  {:<22}  why",
+        "rank", "vis %", "final %", "init mm^2", "found by"
     )?;
     for d in &r.detections {
-        let t = d.pose.translation.vector;
-        let [ro, pi, ya] = rpy_deg(&d.pose);
         let vis = d
             .view
             .map_or("-".to_string(), |v| format!("{:.1}", 100.0 * v.visibility));
@@ -70,17 +71,12 @@ pub fn print_ranked(out: &mut impl std::io::Write, r: &Recognition) -> std::io::
         };
         writeln!(
             out,
-            "{:>4}  {:>6}  {:>8.2}  {:>10.2}  {:>9.2} {:>9.2} {:>9.2}  {:>7.1} {:>7.1} {:>7.1}  {:<22}  {}",
+            "{:>4}  {:>6}  {:>8.2}  {:>10.2}  {}  {:<22}  {}",
             d.rank,
             vis,
             d.final_score,
             d.initial_score,
-            t.x,
-            t.y,
-            t.z,
-            ro,
-            pi,
-            ya,
+            pose_cells(&d.pose),
             found,
             d.rank_reason
         )?;
