@@ -10,19 +10,13 @@ use binpick::{PoseCheck, Recognizer, ViewCheck};
 use nalgebra::Isometry3;
 use serde::Serialize;
 
-use crate::config::{ParamArgs, load_part, load_scene, write_json};
+use crate::config::{PartAndScan, write_json};
 use crate::table::{POSE_HEADER, pose_cells};
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Part model in its own frame (as for `recognize`).
-    #[arg(long)]
-    pub model: PathBuf,
-    /// Scene cloud (.pcd or .ply).
-    #[arg(long)]
-    pub scene: PathBuf,
     #[command(flatten)]
-    pub params: ParamArgs,
+    pub input: PartAndScan,
     /// A pose to judge: model -> scan frame, row-major 4x4 with the translation in mm
     /// ("16 numbers", commas or spaces). Repeat for several.
     #[arg(long, value_name = "4x4")]
@@ -71,8 +65,8 @@ struct CheckRecord {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let params = a.params.params()?;
-    if a.params.reference() || params.stages().engine != binpick::Engine::SceneVoting {
+    let params = a.input.params.params()?;
+    if a.input.params.reference() || params.stages().engine != binpick::Engine::SceneVoting {
         bail!(
             "check judges poses the way the scene-voting engine does; the thesis and reference \
              engines judge no given pose (leave out --preset, --engine and --thesis-strict)"
@@ -92,8 +86,7 @@ pub fn run(a: Args) -> Result<()> {
     if given.is_empty() {
         bail!("no pose to check: give --pose \"16 numbers\" or --poses FILE");
     }
-    let part = load_part(&a.model, a.params.model_units(&params), &params)?;
-    let (scene, seen_from) = load_scene(&a.scene, params.units)?;
+    let (part, (scene, seen_from)) = a.input.load(&params)?;
     let recognizer =
         Recognizer::with_part(part, params.clone()).context("cannot prepare the model")?;
     let poses: Vec<Isometry3<f64>> = given.iter().map(|g| g.pose).collect();

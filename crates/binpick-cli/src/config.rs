@@ -106,6 +106,31 @@ impl ParamArgs {
     }
 }
 
+/// One part model and one scan, with the parameters: what `recognize` and `check` read.
+#[derive(clap::Args, Clone, Debug)]
+pub struct PartAndScan {
+    /// Part model in its own frame: a scanned cloud (.pcd, .ply without faces) or a CAD mesh
+    /// (.stl, .obj, .ply with faces); symmetries in `<model>.json` beside it (README).
+    #[arg(long)]
+    pub model: PathBuf,
+    /// Scene cloud (.pcd or .ply).
+    #[arg(long)]
+    pub scene: PathBuf,
+    #[command(flatten)]
+    pub params: ParamArgs,
+}
+
+/// A scan loaded in mm and where its sensor was (mm), when its file says.
+pub type LoadedScan = (binpick::PointCloud, Option<[f64; 3]>);
+
+impl PartAndScan {
+    /// The part (in the model's units) and the scan (in `params.units`), both in mm.
+    pub fn load(&self, params: &Params) -> Result<(binpick::Part, LoadedScan)> {
+        let part = load_part(&self.model, self.params.model_units(params), params)?;
+        Ok((part, load_scene(&self.scene, params.units)?))
+    }
+}
+
 /// Loads a scan, converts it to mm and logs what loading did; also returns where its sensor
 /// was (mm), when the file says so (a PCD `VIEWPOINT` other than PCL's default).
 pub fn load_scene(path: &Path, units: Units) -> Result<(binpick::PointCloud, Option<[f64; 3]>)> {

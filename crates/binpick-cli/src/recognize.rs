@@ -9,22 +9,14 @@ use std::io::Write;
 
 use crate::Done;
 use crate::config::{
-    BopArgs, FrameArgs, ParamArgs, load_part, load_scene, write_json, write_params_next_to,
-    write_text,
+    BopArgs, FrameArgs, PartAndScan, write_json, write_params_next_to, write_text,
 };
 use crate::table::{print_ranked, summary};
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Part model in its own frame: a scanned cloud (.pcd, .ply without faces) or a CAD mesh
-    /// (.stl, .obj, .ply with faces); symmetries in `<model>.json` beside it (README).
-    #[arg(long)]
-    pub model: PathBuf,
-    /// Scene cloud (.pcd or .ply).
-    #[arg(long)]
-    pub scene: PathBuf,
     #[command(flatten)]
-    pub params: ParamArgs,
+    pub input: PartAndScan,
     /// Write the result as JSON (schema/result.schema.json); the parameters go next to it as
     /// out.params.toml. `--json -` writes the JSON to stdout instead, and the ranked table
     /// then goes to stderr (the parameters are inside the JSON).
@@ -45,23 +37,22 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<Done> {
-    let params = a.params.params()?;
+    let params = a.input.params.params()?;
     let frame = a.frame.frame()?;
-    let part = load_part(&a.model, a.params.model_units(&params), &params)?;
-    let (scene, seen_from) = load_scene(&a.scene, params.units)?;
-    let engine = if a.params.reference() {
+    let (part, (scene, seen_from)) = a.input.load(&params)?;
+    let engine = if a.input.params.reference() {
         "reference"
     } else {
         params.stages().engine.name()
     };
     let spinner = crate::logging::Spinner::start(&format!(
         "recognising {}",
-        a.scene.file_name().map_or_else(
-            || a.scene.display().to_string(),
+        a.input.scene.file_name().map_or_else(
+            || a.input.scene.display().to_string(),
             |n| n.to_string_lossy().into_owned()
         )
     ));
-    let result = if a.params.reference() {
+    let result = if a.input.params.reference() {
         tracing::info!(
             "reference engine: thesis Algorithms 1/2 in C++ against PCL, one part per cluster"
         );
@@ -106,13 +97,13 @@ pub fn run(a: Args) -> Result<Done> {
     // Pictures and the BOP CSV are drawn in the scanner's frame (the scan's); the table
     // and the JSON in the output frame.
     let mut scanner_report = RecognitionReport::new(
-        &a.scene.display().to_string(),
-        &a.model.display().to_string(),
+        &a.input.scene.display().to_string(),
+        &a.input.model.display().to_string(),
         engine,
         &params,
         &result,
     );
-    scanner_report.model_units = a.params.model_units(&params);
+    scanner_report.model_units = a.input.params.model_units(&params);
     let mut report = scanner_report.clone();
     let mut shown = result;
     if let Some(f) = &frame {
@@ -140,7 +131,7 @@ pub fn run(a: Args) -> Result<Done> {
         None => {}
     }
     if let Some(csv) = &a.bop.bop_csv {
-        let ids = a.bop.ids_for(&a.scene, 0);
+        let ids = a.bop.ids_for(&a.input.scene, 0);
         let mut text = String::from(binpick_eval::bop::CSV_HEADER);
         text.push_str(&binpick_eval::bop::csv_rows(
             ids,
